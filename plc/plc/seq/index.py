@@ -1,0 +1,371 @@
+"""Load a machine's sequence set from its TOML index (configs/sequences/sequences.toml).
+
+The index names the machine's tools and axes, the I/O channels sequences may touch, the sequence files of each
+kind and the P/Q values. Its format is described in docs/sequences.md; a short example:
+
+    [machine]
+    tools = 6
+    axes = "XYZ"
+    always_use_tool1 = true
+
+    [io]
+    inputs = ["16-21"]
+    outputs = ["17-19"]
+
+    [sequences]
+    home = "home.seq"
+    put = "put.seq"          # a string is tool 1's file; a table [sequences.put] maps tool numbers to files
+    get = "get.seq"
+
+    [values]
+    P1 = -5.0
+    T2Q1 = 60
+
+tomllib gives no positions, so `_locate_keys` finds the line of each `key =` and `[table]` for diagnostics.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+import tomllib
+from dataclasses import dataclass, field
+from decimal import Decimal
+from pathlib import Path
+
+from .diagnostics import Diagnostics, format_ranges
+from .encoding import AXES, DINT_MAX, IO_CHANNELS, MAX_TOOLS, P_COUNT, Q_COUNT, SCALE, Kind
+
+_ALLOWED_KEYS = {
+    (): {"machine", "io", "sequences", "values"},
+    ("machine",): {"name", "tools", "axes", "always_use_tool1"},
+    ("io",): {"inputs", "outputs"},
+    ("sequences",): {kind.key for kind in Kind},
+}
+
+_PKEY = re.compile(r"P(\d+)")
+_QKEY = re.compile(r"T(\d+)Q(\d+)")
+_RANGE = re.compile(r"\s*(\d+)\s*-\s*(\d+)\s*")
+
+
+@dataclass(frozen=True)
+class IoMap:
+    """Channels a sequence may read (WAITIN, MOVETOEDGE INP) and write (OUT).
+
+    None means the index failed to declare them: that error is reported once, at the index, and channel checks
+    against the missing list are skipped rather than repeated at every OUT or WAITIN.
+    """
+
+    inputs: frozenset[int] | None
+    outputs: frozenset[int] | None
+
+
+@dataclass(frozen=True)
+class Values:
+    """P values by index, Q values by (tool, index); exact decimals as written."""
+
+    p: dict[int, Decimal] = field(default_factory=dict)
+    q: dict[tuple[int, int], Decimal] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SequenceRef:
+    """One `kind [tool] = file` entry of the index and where it was written."""
+
+    kind: Kind
+    tool: int  # 0 for Home and Length Measurement
+    file: str  # as written in the index
+    path: Path
+    line: int
+    col: int
+
+
+@dataclass
+class SequenceSet:
+    index_path: Path
+    index_name: str  # the index as shown in diagnostics
+    name: str
+    tools: int  # 0 when the index failed to give a valid number
+    axes: str | None  # None when the index failed to give valid axes
+    always_use_tool1: bool
+    io: IoMap
+    values: Values
+    refs: list[SequenceRef]
+
+    def ref_for(self, kind: Kind, tool: int = 0) -> SequenceRef | None:
+        """The entry that runs for this kind and tool, honouring always_use_tool1."""
+        if kind.per_tool and self.always_use_tool1:
+            tool = 1
+        for ref in self.refs:
+            if ref.kind is kind and ref.tool == tool:
+                return ref
+        return None
+
+    def tools_of(self, ref: SequenceRef) -> tuple[int, ...]:
+        """The tools a Put/Get entry runs for; () for Home and Length Measurement."""
+        if not ref.kind.per_tool:
+            return ()
+        return tuple(t for t in range(1, self.tools + 1) if self.ref_for(ref.kind, t) == ref)
+
+
+class _IndexReader:
+    """Validates the parsed TOML table by table, reporting at the line of each key."""
+
+    def __init__(self, path: Path, name: str, text: str, diags: Diagnostics):
+        self.path = path
+        self.name = name
+        self.lines = text.splitlines()
+        self.positions = _locate_keys(self.lines)
+        self.diags = diags
+
+    def error(self, key: tuple[str, ...], message: str, hint: str = "") -> None:
+        line, col, width = self._position(key)
+        source = self.lines[line - 1] if line > 0 else ""
+        self.diags.error(self.name, line, col, message, hint=hint, source_line=source, width=width)
+
+    def warning(self, key: tuple[str, ...], message: str, hint: str = "") -> None:
+        line, col, width = self._position(key)
+        source = self.lines[line - 1] if line > 0 else ""
+        self.diags.warning(self.name, line, col, message, hint=hint, source_line=source, width=width)
+
+    def _position(self, key: tuple[str, ...]) -> tuple[int, int, int]:
+        for n in range(len(key), 0, -1):
+            if key[:n] in self.positions:
+                line, col = self.positions[key[:n]]
+                return line, col, len(key[n - 1])
+        return 0, 0, 1
+
+    # --- tables ---
+    def unknown_keys(self, table: dict, where: tuple[str, ...]) -> None:
+        allowed = _ALLOWED_KEYS[where]
+        for key in table:
+            if key not in allowed:
+                close = difflib.get_close_matches(key, sorted(allowed), n=1)
+                hint = f"did you mean '{close[0]}'?" if close else "known keys: " + ", ".join(sorted(allowed))
+                label = f"[{'.'.join(where)}]" if where else "the index"
+                self.error(where + (key,), f"unknown key '{key}' in {label}", hint)
+
+    def machine(self, table: dict) -> tuple[str, int, str | None, bool]:
+        self.unknown_keys(table, ("machine",))
+        name = table.get("name", "")
+        if not isinstance(name, str):
+            self.error(("machine", "name"), "[machine] name must be a string")
+            name = ""
+        tools = table.get("tools")
+        if tools is None:
+            self.error(("machine",), "[machine] needs 'tools', the number of tools (1..32)")
+            tools = 0
+        elif isinstance(tools, bool) or not isinstance(tools, int) or not 1 <= tools <= MAX_TOOLS:
+            self.error(("machine", "tools"), f"[machine] tools must be a whole number 1..{MAX_TOOLS}, got {tools!r}")
+            tools = 0
+        axes = table.get("axes", "XYZ")
+        if not isinstance(axes, str) or not axes or any(a not in AXES for a in axes.upper()) \
+                or len(set(axes.upper())) != len(axes):
+            self.error(("machine", "axes"), f"[machine] axes must be distinct letters of {AXES}, got {axes!r}")
+            axes = None  # unknown: the axis checks are skipped rather than repeated at every MOVEABS
+        always = table.get("always_use_tool1", False)
+        if not isinstance(always, bool):
+            self.error(("machine", "always_use_tool1"), "[machine] always_use_tool1 must be true or false")
+            always = False
+        return name, tools, None if axes is None else "".join(a for a in AXES if a in axes.upper()), always
+
+    def io(self, table: dict) -> IoMap:
+        self.unknown_keys(table, ("io",))
+        channels: dict[str, frozenset[int] | None] = {}
+        for key in ("inputs", "outputs"):
+            if key not in table:
+                prefix = "IX" if key == "inputs" else "QX"
+                self.error(("io",), f"[io] needs '{key}', the {key} sequences may use",
+                           hint=f'e.g. {key} = ["16-23"]; channel n is %{prefix}(n/8).(n mod 8)')
+                channels[key] = None
+            else:
+                channels[key] = frozenset(self.channel_list(table[key], ("io", key)))
+        return IoMap(channels["inputs"], channels["outputs"])
+
+    def channel_list(self, items: object, key: tuple[str, ...]) -> set[int]:
+        channels: set[int] = set()
+        if not isinstance(items, list):
+            self.error(key, f"[io] {key[-1]} must be a list of channels and ranges, e.g. [16, \"18-21\"]")
+            return channels
+        for item in items:
+            if isinstance(item, int) and not isinstance(item, bool):
+                low = high = item
+            elif isinstance(item, str) and _RANGE.fullmatch(item):
+                match = _RANGE.fullmatch(item)
+                low, high = int(match[1]), int(match[2])
+            else:
+                self.error(key, f"[io] {key[-1]}: {item!r} is neither a channel number nor a range \"a-b\"")
+                continue
+            if not 0 <= low <= high < IO_CHANNELS:
+                self.error(key, f"[io] {key[-1]}: {item!r} is outside channels 0..{IO_CHANNELS - 1}",
+                           hint="the sequence runner reaches %IX0.0..%IX7.7 and %QX0.0..%QX7.7")
+                continue
+            channels.update(range(low, high + 1))
+        return channels
+
+    def sequences(self, table: dict, tools: int, always: bool) -> list[SequenceRef]:
+        self.unknown_keys(table, ("sequences",))
+        refs: list[SequenceRef] = []
+        for kind in Kind:
+            entry = table.get(kind.key)
+            if entry is None:
+                continue
+            if isinstance(entry, str):
+                entries = {"1" if kind.per_tool else "": entry}
+            elif isinstance(entry, dict) and kind.per_tool:
+                entries = entry
+            else:
+                shape = "a file name or a table of tool = file" if kind.per_tool else "a file name"
+                self.error(("sequences", kind.key), f"[sequences] {kind.key} must be {shape}")
+                continue
+            for tool_key, file in sorted(entries.items(), key=lambda kv: _tool_sort_key(kv[0])):
+                ref = self.sequence_ref(kind, tool_key, file, tools, always, in_table=isinstance(entry, dict))
+                if ref is not None:
+                    refs.append(ref)
+        return refs
+
+    def sequence_ref(self, kind: Kind, tool_key: str, file: object, tools: int, always: bool,
+                     in_table: bool) -> SequenceRef | None:
+        key = ("sequences", kind.key) + ((tool_key,) if in_table else ())
+        if not isinstance(file, str) or not file:
+            self.error(key, f"the {kind.title} sequence must be a file name")
+            return None
+        tool = 0
+        if kind.per_tool:
+            if not tool_key.isdigit() or not 1 <= int(tool_key) <= MAX_TOOLS:
+                self.error(key, f"'{tool_key}' is not a tool number 1..{MAX_TOOLS}")
+                return None
+            tool = int(tool_key)
+            if tools and tool > tools:
+                self.error(key, f"tool {tool} has a {kind.title} sequence but the machine has tools 1..{tools}",
+                           hint="raise [machine] tools or remove the entry")
+                return None
+            if always and tool != 1:
+                self.warning(key, f"always_use_tool1 = true: the {kind.title} sequence of tool {tool} is never used")
+        path = self.path.parent / file
+        line, col = self.positions.get(key, (0, 0))
+        return SequenceRef(kind, tool, file, path, line, col)
+
+    def values(self, table: dict, tools: int) -> Values:
+        values = Values()
+        for key, raw in table.items():
+            where = ("values", key)
+            number = self.number(raw, where, key)
+            p_match, q_match = _PKEY.fullmatch(key), _QKEY.fullmatch(key)
+            if p_match:
+                index = int(p_match[1])
+                if not 1 <= index <= P_COUNT:
+                    self.error(where, f"{key} is out of range: P variables are P1..P{P_COUNT}")
+                elif number is not None:
+                    values.p[index] = number
+            elif q_match:
+                tool, index = int(q_match[1]), int(q_match[2])
+                if not 1 <= index <= Q_COUNT:
+                    self.error(where, f"{key} is out of range: Q variables are Q1..Q{Q_COUNT} of each tool")
+                elif not 1 <= tool <= (tools or MAX_TOOLS):
+                    self.error(where, f"{key} names tool {tool} but the machine has tools 1..{tools or MAX_TOOLS}")
+                elif number is not None:
+                    values.q[(tool, index)] = number
+            else:
+                self.error(where, f"'{key}' is not a P or Q variable name",
+                           hint=f"write P1..P{P_COUNT} or T1Q1..T{MAX_TOOLS}Q{Q_COUNT}")
+        return values
+
+    def number(self, raw: object, where: tuple[str, ...], key: str) -> Decimal | None:
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+            self.error(where, f"{key} must be a number, got {raw!r}")
+            return None
+        value = Decimal(repr(raw)) if isinstance(raw, float) else Decimal(raw)
+        if not value.is_finite():
+            self.error(where, f"{key} must be a finite number")
+            return None
+        if (value * SCALE) % 1 != 0:
+            self.error(where, f"{key} = {raw!r} has more than 3 decimals", hint="values are stored in thousandths")
+            return None
+        if abs(value * SCALE) > DINT_MAX:
+            self.error(where, f"{key} = {raw!r} does not fit in thousandths (|value| <= {DINT_MAX / SCALE:.3f})")
+            return None
+        return value
+
+
+def _tool_sort_key(key: str) -> tuple[int, str]:
+    return (int(key), "") if key.isdigit() else (MAX_TOOLS + 1, key)
+
+
+def _locate_keys(lines: list[str]) -> dict[tuple[str, ...], tuple[int, int]]:
+    """(table..., key) -> (line, col) for `[table]` headers and `key = value` lines; enough for our simple files."""
+    positions: dict[tuple[str, ...], tuple[int, int]] = {}
+    table: tuple[str, ...] = ()
+    for line_no, raw in enumerate(lines, start=1):
+        stripped = raw.strip()
+        col = len(raw) - len(raw.lstrip()) + 1
+        if not stripped or stripped.startswith("#"):
+            continue
+        if stripped.startswith("[") and not stripped.startswith("[["):
+            header = stripped[1:stripped.find("]")] if "]" in stripped else stripped[1:]
+            table = tuple(part.strip().strip("\"'") for part in header.split("."))
+            positions.setdefault(table, (line_no, col + 1))
+        elif "=" in stripped:
+            key = tuple(part.strip().strip("\"'") for part in stripped.split("=", 1)[0].split("."))
+            positions.setdefault(table + key, (line_no, col))
+    return positions
+
+
+def _toml_error_position(message: str) -> tuple[int, int]:
+    match = re.search(r"line (\d+), column (\d+)", message)
+    return (int(match[1]), int(match[2])) if match else (0, 0)
+
+
+def load_index(path: Path, name: str, diags: Diagnostics) -> SequenceSet | None:
+    """Read and validate an index; None when it cannot be read or parsed at all (the reason is in diags)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        diags.error(name, 0, 0, f"cannot read the index: {getattr(exc, 'strerror', None) or exc}")
+        return None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        line, col = _toml_error_position(str(exc))
+        lines = text.splitlines()
+        source = lines[line - 1] if 0 < line <= len(lines) else ""
+        message = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
+        diags.error(name, line, col, f"bad TOML: {message}", source_line=source)
+        return None
+    reader = _IndexReader(path, name, text, diags)
+    reader.unknown_keys(data, ())
+    for table in ("machine", "io", "sequences"):
+        if not isinstance(data.get(table), dict):
+            reader.error((), f"the index needs a [{table}] table")
+    machine = data.get("machine") if isinstance(data.get("machine"), dict) else {}
+    io_table = data.get("io") if isinstance(data.get("io"), dict) else None
+    seq_table = data.get("sequences") if isinstance(data.get("sequences"), dict) else {}
+    values_table = data.get("values", {})
+    if not isinstance(values_table, dict):
+        reader.error(("values",), "[values] must be a table of P/Q variables")
+        values_table = {}
+    set_name, tools, axes, always = reader.machine(machine) if machine or "machine" in data else ("", 0, None, False)
+    io = reader.io(io_table) if io_table is not None else IoMap(None, None)
+    refs = reader.sequences(seq_table, tools, always)
+    values = reader.values(values_table, tools)
+    seqset = SequenceSet(path, name, set_name, tools, axes, always, io, values, refs)
+    _check_coverage(seqset, reader, seq_table)
+    return seqset
+
+
+def _check_coverage(seqset: SequenceSet, reader: _IndexReader, seq_table: dict) -> None:
+    """Toolchanger Home is mandatory; every tool needs a Put Tool and a Get Tool sequence."""
+    if "home" not in seq_table:
+        reader.error(("sequences",), "the set has no Toolchanger Home sequence",
+                     hint='add home = "home.seq" to [sequences]; it runs after power-up')
+    if not seqset.tools:
+        return
+    for kind in (Kind.PUT, Kind.GET):
+        missing = [t for t in range(1, seqset.tools + 1) if seqset.ref_for(kind, t) is None]
+        if not missing:
+            continue
+        hint = (f"add [sequences.{kind.key}] entries for them, or set [machine] always_use_tool1 = true"
+                if not seqset.always_use_tool1 else f'add {kind.key} = "{kind.key}.seq" to [sequences]')
+        subject = f"tool {missing[0]} has" if len(missing) == 1 else f"tools {format_ranges(missing)} have"
+        reader.error(("sequences", kind.key) if kind.key in seq_table else ("sequences",),
+                     f"{subject} no {kind.title} sequence", hint=hint)
