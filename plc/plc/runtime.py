@@ -1,0 +1,407 @@
+"""The soft-PLC runtime, Python side: build the C runtime with a program, and `plc run`.
+
+``build_runtime(program_c, out_dir)`` compiles the runtime sources in ``plc/runtime/``
+together with one program C file (written against ``plc/include/plc_abi.h``) into an
+executable, cached by the content of everything that goes into it.
+
+``run_command(args, program_c)`` implements ``plc run``: it reads the optional TOML
+configuration, applies the command-line options on top, builds if needed and replaces
+the current process with the runtime (which then owns the terminal and the signals).
+
+Configuration file (every key optional; paths relative to the file's directory)::
+
+    [modbus]
+    bind = "127.0.0.1"              # IPv4 address to listen on
+    port = 5020
+    max_clients = 32
+    allow = ["127.0.0.1", "192.168.1.0/24"]   # absent or empty: any client
+    writable_coils = ["400-799"]              # [] = none
+    writable_registers = ["512-8191"]
+
+    [io]
+    layer = "sim"                   # "sim" or "none"
+
+    [retain]
+    file = "var/plc.retain"
+    interval_ms = 200               # minimum time between two saves
+    registers = ["1024-1039"]       # holding registers saved with the RETAIN variables
+
+    [scan]
+    realtime = true                 # ask for SCHED_FIFO
+    rt_priority = 50
+    status_interval_s = 10          # status log line period when not on a terminal
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import ipaddress
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import tomllib
+from pathlib import Path
+from typing import Any, Sequence
+
+PACKAGE_ROOT = Path(__file__).resolve().parent.parent          # .../plc
+RUNTIME_DIR = PACKAGE_ROOT / "runtime"
+INCLUDE_DIR = PACKAGE_ROOT / "include"
+BINARY_NAME = "plc-runtime"
+
+COILS = 800                 # %QX0.0 .. %QX99.7
+HOLDING_REGISTERS = 8192    # %QW, %MW, %MD, %ML
+DEFAULT_PORT = 5020
+DEFAULT_RETAIN_FILE = Path("var") / "plc.retain"
+DEFAULT_BUILD_DIR = Path("build") / "runtime"
+
+WARNINGS = ["-std=c11", "-Wall", "-Wextra", "-Werror"]
+OPTIMISE = ["-O2", "-g"]
+SANITIZE = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
+            "-fno-sanitize-recover=undefined"]
+
+APT_HINT = "install the Debian packages gcc, make, pkg-config and libmodbus-dev"
+
+
+class RuntimeBuildError(Exception):
+    """The runtime could not be built; str() is a message for the user (no traceback needed)."""
+
+
+class ConfigError(Exception):
+    """The run configuration is invalid; str() says where and why."""
+
+
+# --------------------------------------------------------------------------- build
+
+def _modbus_flags() -> tuple[list[str], list[str]]:
+    if shutil.which("pkg-config"):
+        cflags = subprocess.run(["pkg-config", "--cflags", "libmodbus"], capture_output=True, text=True)
+        libs = subprocess.run(["pkg-config", "--libs", "libmodbus"], capture_output=True, text=True)
+        if cflags.returncode == 0 and libs.returncode == 0:
+            return cflags.stdout.split(), libs.stdout.split()
+    if Path("/usr/include/modbus/modbus.h").exists():
+        return ["-I/usr/include/modbus"], ["-lmodbus"]
+    raise RuntimeBuildError(f"libmodbus not found: {APT_HINT}")
+
+
+def _compiler() -> str:
+    cc = os.environ.get("CC", "gcc")
+    if shutil.which(cc) is None:
+        raise RuntimeBuildError(f"C compiler '{cc}' not found: {APT_HINT}")
+    return cc
+
+
+def _dependencies(cc: str, program_c: Path, cppflags: list[str]) -> list[Path]:
+    """The program file and every non-system header it includes (gcc -MM)."""
+    result = subprocess.run([cc, "-MM", *cppflags, str(program_c)], capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeBuildError(f"cannot read the includes of {program_c}:\n{_trim(result.stderr)}")
+    text = result.stdout.replace("\\\n", " ")
+    deps = text.split(":", 1)[1].split() if ":" in text else []
+    return [Path(d) for d in deps]
+
+
+def _trim(text: str, lines: int = 60) -> str:
+    parts = text.strip().splitlines()
+    if len(parts) > lines:
+        parts = parts[:lines] + [f"... ({len(parts) - lines} more lines)"]
+    return "\n".join(parts)
+
+
+def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
+                  include_dirs: Sequence[Path] = ()) -> Path:
+    """Compile the runtime with `program_c`; return the executable (reused when nothing changed).
+
+    The cache key covers the compiler version, the flags, the runtime sources and
+    headers, and the program file with every header it includes.  `sanitize` builds
+    with AddressSanitizer and UndefinedBehaviorSanitizer.  Raises RuntimeBuildError.
+    """
+    program_c = Path(program_c)
+    out_dir = Path(out_dir)
+    if not program_c.is_file():
+        raise RuntimeBuildError(f"program C file {program_c} does not exist")
+    sources = sorted(RUNTIME_DIR.glob("*.c"))
+    if not sources:
+        raise RuntimeBuildError(f"runtime sources not found in {RUNTIME_DIR}")
+    cc = _compiler()
+    modbus_cflags, modbus_libs = _modbus_flags()
+    cppflags = ["-I" + str(RUNTIME_DIR), "-I" + str(INCLUDE_DIR)]
+    cppflags += ["-I" + str(Path(d).resolve()) for d in include_dirs] + modbus_cflags
+    cflags = WARNINGS + (SANITIZE if sanitize else OPTIMISE)
+    libs = modbus_libs + ["-lpthread"]
+
+    version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
+    digest = hashlib.sha256()
+    for item in [cc, *version, *cflags, *cppflags, *libs]:
+        digest.update(item.encode() + b"\0")
+    inputs = sources + sorted(RUNTIME_DIR.glob("*.h")) + [INCLUDE_DIR / "plc_abi.h"]
+    for path in inputs + _dependencies(cc, program_c, cppflags):
+        digest.update(str(path.name).encode() + b"\0")
+        digest.update(path.read_bytes())
+    name = f"{BINARY_NAME}-{digest.hexdigest()[:16]}" + ("-asan" if sanitize else "")
+    target = out_dir / name
+    if target.is_file() and os.access(target, os.X_OK):
+        return target
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=name + ".", dir=out_dir)
+    os.close(fd)
+    command = [cc, *cflags, *cppflags, *map(str, sources), str(program_c), "-o", tmp_name, *libs]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        os.unlink(tmp_name)
+        hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr else ""
+        raise RuntimeBuildError(f"building the runtime with {program_c} failed:\n"
+                                f"{_trim(result.stderr)}{hint}")
+    os.chmod(tmp_name, 0o755)
+    os.replace(tmp_name, target)
+    return target
+
+
+# -------------------------------------------------------------------------- config
+
+@dataclasses.dataclass
+class RunConfig:
+    bind: str = "127.0.0.1"
+    port: int = DEFAULT_PORT
+    max_clients: int = 32
+    allow: list[str] = dataclasses.field(default_factory=list)
+    writable_coils: list[str] | None = None          # None: the runtime's default
+    writable_registers: list[str] | None = None
+    io: str = "sim"
+    retain_file: Path | None = None                  # None: DEFAULT_RETAIN_FILE
+    retain_interval_ms: int = 200
+    retain_registers: list[str] = dataclasses.field(default_factory=list)
+    realtime: bool = True
+    rt_priority: int = 50
+    status_interval_s: float = 10.0
+
+
+_KEYS = {
+    "modbus": {"bind", "port", "max_clients", "allow", "writable_coils", "writable_registers"},
+    "io": {"layer"},
+    "retain": {"file", "interval_ms", "registers"},
+    "scan": {"realtime", "rt_priority", "status_interval_s"},
+}
+
+
+def _check_ranges(where: str, value: Any, limit: int) -> list[str]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list):
+        raise ConfigError(f"{where}: expected a list of ranges like [\"400-799\"], got {value!r}")
+    out = []
+    for item in value:
+        text = str(item).strip() if isinstance(item, (str, int)) and not isinstance(item, bool) else None
+        if text is None:
+            raise ConfigError(f"{where}: {item!r} is not an address or a range 'FIRST-LAST'")
+        lo_text, _, hi_text = text.partition("-")
+        if not lo_text.strip().isdigit() or (hi_text and not hi_text.strip().isdigit()):
+            raise ConfigError(f"{where}: {item!r} is not an address or a range 'FIRST-LAST'")
+        lo = int(lo_text)
+        hi = int(hi_text) if hi_text else lo
+        if lo > hi or hi >= limit:
+            raise ConfigError(f"{where}: range {item!r} is outside 0-{limit - 1}")
+        out.append(f"{lo}-{hi}")
+    return out
+
+
+def _check_int(where: str, value: Any, lo: int, hi: int) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+        raise ConfigError(f"{where}: expected an integer {lo}..{hi}, got {value!r}")
+    return value
+
+
+def check_bind(where: str, value: Any) -> str:
+    try:
+        return str(ipaddress.IPv4Address(value))
+    except (ipaddress.AddressValueError, ValueError, TypeError):
+        raise ConfigError(f"{where}: {value!r} is not an IPv4 address") from None
+
+
+def check_allow(where: str, value: Any) -> str:
+    try:
+        return str(ipaddress.IPv4Network(value, strict=False))
+    except (ipaddress.AddressValueError, ipaddress.NetmaskValueError, ValueError, TypeError):
+        raise ConfigError(f"{where}: {value!r} is not an IPv4 address or ADDR/BITS") from None
+
+
+def load_config(path: Path) -> RunConfig:
+    """Read and check a TOML run configuration; raise ConfigError on any problem."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+
+    cfg = RunConfig()
+    for section, table in data.items():
+        if section not in _KEYS:
+            raise ConfigError(f"{path}: unknown section [{section}] (known: "
+                              + ", ".join(f"[{s}]" for s in _KEYS) + ")")
+        if not isinstance(table, dict):
+            raise ConfigError(f"{path}: '{section}' must be a section [{section}]")
+        for key in table:
+            if key not in _KEYS[section]:
+                raise ConfigError(f"{path}: [{section}] unknown key '{key}' (known: "
+                                  + ", ".join(sorted(_KEYS[section])) + ")")
+
+    def where(section: str, key: str) -> str:
+        return f"{path}: [{section}] {key}"
+
+    modbus = data.get("modbus", {})
+    if "bind" in modbus:
+        cfg.bind = check_bind(where("modbus", "bind"), modbus["bind"])
+    if "port" in modbus:
+        cfg.port = _check_int(where("modbus", "port"), modbus["port"], 0, 65535)
+    if "max_clients" in modbus:
+        cfg.max_clients = _check_int(where("modbus", "max_clients"), modbus["max_clients"], 1, 256)
+    if "allow" in modbus:
+        allow = modbus["allow"]
+        if isinstance(allow, str):
+            allow = [allow]
+        if not isinstance(allow, list):
+            raise ConfigError(f"{where('modbus', 'allow')}: expected a list of addresses")
+        if len(allow) > 32:
+            raise ConfigError(f"{where('modbus', 'allow')}: at most 32 entries")
+        cfg.allow = [check_allow(where("modbus", "allow"), a) for a in allow]
+    if "writable_coils" in modbus:
+        cfg.writable_coils = _check_ranges(where("modbus", "writable_coils"), modbus["writable_coils"], COILS)
+    if "writable_registers" in modbus:
+        cfg.writable_registers = _check_ranges(where("modbus", "writable_registers"),
+                                               modbus["writable_registers"], HOLDING_REGISTERS)
+
+    io = data.get("io", {})
+    if "layer" in io:
+        if io["layer"] not in ("sim", "none"):
+            raise ConfigError(f"{where('io', 'layer')}: expected \"sim\" or \"none\", got {io['layer']!r}")
+        cfg.io = io["layer"]
+
+    retain = data.get("retain", {})
+    if "file" in retain:
+        if not isinstance(retain["file"], str) or not retain["file"]:
+            raise ConfigError(f"{where('retain', 'file')}: expected a file name")
+        cfg.retain_file = (path.parent / retain["file"]) if not Path(retain["file"]).is_absolute() \
+            else Path(retain["file"])
+    if "interval_ms" in retain:
+        cfg.retain_interval_ms = _check_int(where("retain", "interval_ms"), retain["interval_ms"], 0, 3600000)
+    if "registers" in retain:
+        cfg.retain_registers = _check_ranges(where("retain", "registers"), retain["registers"],
+                                             HOLDING_REGISTERS)
+
+    scan = data.get("scan", {})
+    if "realtime" in scan:
+        if not isinstance(scan["realtime"], bool):
+            raise ConfigError(f"{where('scan', 'realtime')}: expected true or false")
+        cfg.realtime = scan["realtime"]
+    if "rt_priority" in scan:
+        cfg.rt_priority = _check_int(where("scan", "rt_priority"), scan["rt_priority"], 1, 99)
+    if "status_interval_s" in scan:
+        value = scan["status_interval_s"]
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
+            raise ConfigError(f"{where('scan', 'status_interval_s')}: expected a number of seconds >= 0.1")
+        cfg.status_interval_s = float(value)
+    return cfg
+
+
+def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
+    """The command line of the C runtime for a configuration."""
+    retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
+    argv = [str(binary), "--bind", cfg.bind, "--port", str(cfg.port), "--io", cfg.io,
+            "--max-clients", str(cfg.max_clients), "--retain", str(retain),
+            "--retain-interval", str(cfg.retain_interval_ms),
+            "--status-interval", str(cfg.status_interval_s)]
+    if cfg.allow:
+        argv += ["--allow", ",".join(cfg.allow)]
+    if cfg.writable_coils is not None:
+        argv += ["--writable-coils", ",".join(cfg.writable_coils) or "none"]
+    if cfg.writable_registers is not None:
+        argv += ["--writable-registers", ",".join(cfg.writable_registers) or "none"]
+    if cfg.retain_registers:
+        argv += ["--retain-registers", ",".join(cfg.retain_registers)]
+    if cfg.realtime:
+        argv += ["--rt-priority", str(cfg.rt_priority)]
+    else:
+        argv.append("--no-rt")
+    return argv
+
+
+# ------------------------------------------------------------------------- command
+
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `plc run` (the caller adds the ST sources argument)."""
+    parser.add_argument("--config", type=Path, metavar="FILE", help="TOML run configuration")
+    parser.add_argument("--bind", metavar="ADDR", help="IPv4 address to serve Modbus on (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, metavar="N", help=f"Modbus/TCP port (default {DEFAULT_PORT})")
+    parser.add_argument("--io", choices=("sim", "none"), help="I/O layer (default sim)")
+    parser.add_argument("--retain", type=Path, metavar="FILE",
+                        help=f"file keeping RETAIN data (default {DEFAULT_RETAIN_FILE})")
+    parser.add_argument("--sanitize", action="store_true",
+                        help="run an AddressSanitizer/UBSan build of the runtime")
+    parser.add_argument("--build-dir", type=Path, default=DEFAULT_BUILD_DIR, metavar="DIR",
+                        help=f"where built runtimes are cached (default {DEFAULT_BUILD_DIR})")
+
+
+def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
+    """Check the configuration, build the runtime; return the command to execute."""
+    cfg = load_config(args.config) if args.config else RunConfig()
+    if args.bind is not None:
+        cfg.bind = check_bind("--bind", args.bind)
+    if args.port is not None:
+        cfg.port = _check_int("--port", args.port, 0, 65535)
+    if args.io is not None:
+        cfg.io = args.io
+    if args.retain is not None:
+        cfg.retain_file = args.retain
+    retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
+    binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize)
+    try:
+        retain.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create the directory of the retain file {retain}: {exc}") from None
+    return runtime_argv(binary, cfg)
+
+
+def run_command(args: argparse.Namespace, program_c: Path) -> int:
+    """`plc run`: build if needed, then become the runtime (returns only on an error)."""
+    try:
+        argv = prepare_run(args, program_c)
+    except (ConfigError, RuntimeBuildError) as exc:
+        print(f"plc run: error: {exc}", file=sys.stderr)
+        return 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    try:
+        os.execv(argv[0], argv)
+    except OSError as exc:
+        print(f"plc run: error: cannot start {argv[0]}: {exc}", file=sys.stderr)
+    return 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m plc.runtime PROGRAM.c [options]`: `plc run` for an already compiled program."""
+    parser = argparse.ArgumentParser(prog="python -m plc.runtime",
+                                     description="Build the soft-PLC runtime with a program C file and run it.")
+    parser.add_argument("program_c", type=Path, metavar="PROGRAM.c", help="program C file (plc_abi.h)")
+    parser.add_argument("--build-only", action="store_true", help="build, print the executable's path, exit")
+    add_run_arguments(parser)
+    args = parser.parse_args(argv)
+    if args.build_only:
+        try:
+            print(build_runtime(args.program_c, args.build_dir, sanitize=args.sanitize))
+        except RuntimeBuildError as exc:
+            print(f"plc run: error: {exc}", file=sys.stderr)
+            return 1
+        return 0
+    return run_command(args, args.program_c)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

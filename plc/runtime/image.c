@@ -1,0 +1,327 @@
+/*
+ * image.c - the I/O image and OpenPLC's address map.
+ *
+ * Two images: the program image (prog_image_t), which the located variables
+ * of the program point into and which only the scan thread touches, and the
+ * Modbus image (bus_image_t), which the server reads and writes under
+ * runtime_t.lock.  They meet only at scan boundaries:
+ *
+ *   scan start  image_take_host_writes(): host writes queued since the last
+ *               scan are copied into the program image, whole requests at a
+ *               time (a request is applied entirely before a scan or after).
+ *   scan end    image_publish(): the program image is copied to the Modbus
+ *               image, then writes that arrived during the scan are laid back
+ *               on top, so a client reads back what it wrote.
+ *
+ * A read therefore always sees the outputs of one complete scan.
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "runtime.h"
+
+/* ------------------------------------------------------------ addr sets */
+
+int addr_set_parse(addr_set_t *s, const char *text, unsigned limit, char *err, size_t errlen)
+{
+    const char *p = text;
+
+    while (*p) {
+        char *end;
+        unsigned long lo, hi;
+
+        while (*p == ' ' || *p == ',')
+            p++;
+        if (!*p)
+            break;
+        if (*p < '0' || *p > '9')
+            goto bad;
+        lo = strtoul(p, &end, 10);
+        hi = lo;
+        p = end;
+        if (*p == '-') {
+            p++;
+            if (*p < '0' || *p > '9')
+                goto bad;
+            hi = strtoul(p, &end, 10);
+            p = end;
+        }
+        if (*p && *p != ',' && *p != ' ')
+            goto bad;
+        if (lo > hi || hi >= limit) {
+            snprintf(err, errlen, "range %lu-%lu in '%s' is outside 0-%u", lo, hi, text, limit - 1);
+            return -1;
+        }
+        for (unsigned long a = lo; a <= hi; a++)
+            addr_set_add(s, (unsigned)a);
+    }
+    return 0;
+bad:
+    snprintf(err, errlen, "cannot read '%s': expected addresses like 400-799,1024", text);
+    return -1;
+}
+
+/* -------------------------------------------------------------- binding */
+
+static unsigned type_size(unsigned type)
+{
+    switch (type) {
+    case PLC_T_BOOL: case PLC_T_SINT: case PLC_T_USINT: case PLC_T_BYTE:
+        return 1;
+    case PLC_T_INT: case PLC_T_UINT: case PLC_T_WORD:
+        return 2;
+    case PLC_T_DINT: case PLC_T_UDINT: case PLC_T_DWORD: case PLC_T_REAL: case PLC_T_ENUM:
+        return 4;
+    case PLC_T_LINT: case PLC_T_ULINT: case PLC_T_LWORD: case PLC_T_LREAL:
+    case PLC_T_TIME: case PLC_T_DATE: case PLC_T_TOD: case PLC_T_DT:
+        return 8;
+    default:
+        return 0;
+    }
+}
+
+/* Where a located variable lives in the program image, or NULL when the
+ * address is not on OpenPLC's Modbus map (the variable then keeps the private
+ * storage that init() gave it).  *why explains a NULL. */
+static void *slot_for(prog_image_t *p, const plc_located_t *l, const char **why)
+{
+    unsigned n = l->index;
+
+    *why = NULL;
+    if (l->size == 'X') {
+        if ((l->area != 'I' && l->area != 'Q') || n >= MAP_BITS / 8 || l->bit > 7) {
+            *why = "bit outside %IX0.0-%IX99.7 / %QX0.0-%QX99.7";
+            return NULL;
+        }
+        return l->area == 'I' ? &p->ix[n * 8 + l->bit] : &p->qx[n * 8 + l->bit];
+    }
+    if (n >= MAP_WORDS) {
+        *why = "index above 1023";
+        return NULL;
+    }
+    switch (l->size) {
+    case 'W':
+        if (l->area == 'I')
+            return &p->iw[n];
+        if (l->area == 'Q')
+            return &p->qw[n];
+        return &p->mw[n];
+    case 'D':
+        if (l->area == 'M')
+            return &p->md[n];
+        break;
+    case 'L':
+        if (l->area == 'M')
+            return &p->ml[n];
+        break;
+    default:
+        break;
+    }
+    *why = "OpenPLC maps only %IX %QX %IW %QW %MW %MD %ML to Modbus";
+    return NULL;
+}
+
+static unsigned size_bytes(char size)
+{
+    switch (size) {
+    case 'X': case 'B': return 1;
+    case 'W': return 2;
+    case 'D': return 4;
+    case 'L': return 8;
+    default: return 0;
+    }
+}
+
+int image_bind_program(runtime_t *rt, char *err, size_t errlen)
+{
+    const plc_program_t *prog = rt->prog;
+
+    for (uint32_t i = 0; i < prog->n_located; i++) {
+        const plc_located_t *l = &prog->located[i];
+        unsigned want = size_bytes(l->size);
+        unsigned have = type_size(l->type);
+        const char *why;
+        void *slot;
+
+        if (want == 0 || (l->area != 'I' && l->area != 'Q' && l->area != 'M') || l->ptr == NULL) {
+            snprintf(err, errlen, "located variable %s at %s: malformed entry (area %c, size %c)",
+                     l->var, l->address, l->area ? l->area : '?', l->size ? l->size : '?');
+            return -1;
+        }
+        if (have != want || (l->size == 'X' && l->type != PLC_T_BOOL)) {
+            snprintf(err, errlen, "located variable %s at %s: its type takes %u bytes, the address %u",
+                     l->var, l->address, have, want);
+            return -1;
+        }
+        slot = slot_for(&rt->pimg, l, &why);
+        if (slot == NULL) {
+            log_msg(rt->log, LOG_WARN, "%s at %s is not on the Modbus map (%s); it stays inside the program",
+                    l->var, l->address, why);
+            continue;
+        }
+        /* Keep the initial value that init() stored in the private slot. */
+        if (*l->ptr != NULL)
+            memcpy(slot, *l->ptr, want);
+        *l->ptr = slot;
+    }
+    return 0;
+}
+
+/* ------------------------------------------------------- register codec */
+
+uint16_t image_prog_holding(const prog_image_t *p, unsigned a)
+{
+    if (a < MAP_HOLD_MW)
+        return p->qw[a];
+    if (a < MAP_HOLD_MD)
+        return p->mw[a - MAP_HOLD_MW];
+    if (a < MAP_HOLD_ML) {
+        unsigned k = a - MAP_HOLD_MD;
+        uint32_t v = p->md[k / 2].u;
+        return (uint16_t)(k % 2 == 0 ? v >> 16 : v);
+    }
+    unsigned k = a - MAP_HOLD_ML;
+    uint64_t v = p->ml[k / 4].u;
+    return (uint16_t)(v >> (16 * (3 - k % 4)));
+}
+
+void image_prog_set_holding(prog_image_t *p, unsigned a, uint16_t v)
+{
+    if (a < MAP_HOLD_MW) {
+        p->qw[a] = v;
+    } else if (a < MAP_HOLD_MD) {
+        p->mw[a - MAP_HOLD_MW] = v;
+    } else if (a < MAP_HOLD_ML) {
+        unsigned k = a - MAP_HOLD_MD;
+        uint32_t *u = &p->md[k / 2].u;
+        if (k % 2 == 0)
+            *u = (*u & 0x0000ffffu) | ((uint32_t)v << 16);
+        else
+            *u = (*u & 0xffff0000u) | v;
+    } else {
+        unsigned k = a - MAP_HOLD_ML;
+        unsigned shift = 16 * (3 - k % 4);
+        uint64_t *u = &p->ml[k / 4].u;
+        *u = (*u & ~((uint64_t)0xffff << shift)) | ((uint64_t)v << shift);
+    }
+}
+
+/* ------------------------------------------------------- scan boundaries */
+
+void image_take_host_writes(runtime_t *rt)
+{
+    bus_image_t *b = &rt->bimg;
+    prog_image_t *p = &rt->pimg;
+
+    if (!b->any_dirty)
+        return;
+    for (unsigned w = 0; w < MAP_BITS / 64 + 1; w++) {
+        uint64_t bits = b->dirty_coils.bits[w];
+        while (bits) {
+            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
+            bits &= bits - 1;
+            p->qx[a] = b->pending_coils[a];
+        }
+        b->dirty_coils.bits[w] = 0;
+    }
+    for (unsigned w = 0; w < MAP_HOLDING / 64; w++) {
+        uint64_t bits = b->dirty_holding.bits[w];
+        while (bits) {
+            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
+            bits &= bits - 1;
+            image_prog_set_holding(p, a, b->pending_holding[a]);
+        }
+        b->dirty_holding.bits[w] = 0;
+    }
+    b->any_dirty = false;
+}
+
+void image_publish(runtime_t *rt)
+{
+    bus_image_t *b = &rt->bimg;
+    const prog_image_t *p = &rt->pimg;
+
+    memcpy(b->coils, p->qx, MAP_BITS);
+    memcpy(b->discrete, p->ix, MAP_BITS);
+    memcpy(b->input_regs, p->iw, sizeof p->iw);
+    memcpy(&b->holding[MAP_HOLD_QW], p->qw, sizeof p->qw);
+    memcpy(&b->holding[MAP_HOLD_MW], p->mw, sizeof p->mw);
+    for (unsigned i = 0; i < MAP_WORDS; i++) {
+        uint32_t d = p->md[i].u;
+        uint64_t l = p->ml[i].u;
+        uint16_t *r = &b->holding[MAP_HOLD_MD + 2 * i];
+        r[0] = (uint16_t)(d >> 16);
+        r[1] = (uint16_t)d;
+        r = &b->holding[MAP_HOLD_ML + 4 * i];
+        r[0] = (uint16_t)(l >> 48);
+        r[1] = (uint16_t)(l >> 32);
+        r[2] = (uint16_t)(l >> 16);
+        r[3] = (uint16_t)l;
+    }
+    if (!b->any_dirty)
+        return;
+    /* Writes that arrived during this scan stay visible until applied. */
+    for (unsigned a = 0; a < MAP_BITS; a++)
+        if (addr_set_has(&b->dirty_coils, a))
+            b->coils[a] = b->pending_coils[a];
+    for (unsigned w = 0; w < MAP_HOLDING / 64; w++) {
+        uint64_t bits = b->dirty_holding.bits[w];
+        while (bits) {
+            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
+            bits &= bits - 1;
+            b->holding[a] = b->pending_holding[a];
+        }
+    }
+}
+
+void image_make_outputs_safe(prog_image_t *p)
+{
+    memset(p->qx, 0, sizeof p->qx);
+    memset(p->qw, 0, sizeof p->qw);
+}
+
+void image_host_write_coil(bus_image_t *b, unsigned a, bool on)
+{
+    b->coils[a] = on;
+    b->pending_coils[a] = on;
+    addr_set_add(&b->dirty_coils, a);
+    b->any_dirty = true;
+}
+
+void image_host_write_register(bus_image_t *b, unsigned a, uint16_t v)
+{
+    b->holding[a] = v;
+    b->pending_holding[a] = v;
+    addr_set_add(&b->dirty_holding, a);
+    b->any_dirty = true;
+}
+
+/* ------------------------------------------------------- diagnostic block */
+
+void diag_put16(bus_image_t *b, unsigned off, uint16_t v)
+{
+    b->input_regs[DIAG_BASE + off] = v;
+}
+
+void diag_put32(bus_image_t *b, unsigned off, uint32_t v)
+{
+    b->input_regs[DIAG_BASE + off] = (uint16_t)(v >> 16);
+    b->input_regs[DIAG_BASE + off + 1] = (uint16_t)v;
+}
+
+void diag_put64(bus_image_t *b, unsigned off, uint64_t v)
+{
+    diag_put32(b, off, (uint32_t)(v >> 32));
+    diag_put32(b, off + 2, (uint32_t)v);
+}
+
+uint32_t diag_get32(const bus_image_t *b, unsigned off)
+{
+    return ((uint32_t)b->input_regs[DIAG_BASE + off] << 16) | b->input_regs[DIAG_BASE + off + 1];
+}
+
+uint64_t diag_get64(const bus_image_t *b, unsigned off)
+{
+    return ((uint64_t)diag_get32(b, off) << 32) | diag_get32(b, off + 2);
+}

@@ -1,0 +1,370 @@
+/*
+ * main.c - options, start-up and orderly shutdown of the soft-PLC runtime.
+ *
+ * Start-up: check the program against the ABI, init() it, bind its located
+ * variables to the image, open the I/O layer, restore retained data, publish
+ * the first image, start the Modbus server, then run the scan loop on this
+ * thread (SCHED_FIFO when permitted).
+ *
+ * SIGINT/SIGTERM are blocked in every thread and polled by the scan loop; on
+ * either the program stops, outputs go safe (all coils and %QW cleared, in
+ * the image and at the I/O layer), retained data are flushed, the server
+ * closes its connections and the process exits 0.
+ */
+#define _GNU_SOURCE
+#include <arpa/inet.h>
+#include <errno.h>
+#include <getopt.h>
+#include <inttypes.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "runtime.h"
+
+#define DEFAULT_PORT 5020
+#define DEFAULT_MAX_CLIENTS 32
+#define DEFAULT_WRITABLE_COILS "400-799"
+#define DEFAULT_WRITABLE_REGISTERS "512-8191"
+#define DEFAULT_RETAIN_INTERVAL_MS 200
+#define DEFAULT_RT_PRIORITY 50
+#define FALLBACK_TICK_NS 10000000u
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+"usage: " RT_NAME " [options]\n"
+"Runs the linked PLC program as a soft-PLC serving Modbus/TCP (OpenPLC address map).\n"
+"\n"
+"  --bind ADDR              IPv4 address to listen on (default 127.0.0.1)\n"
+"  --port N                 TCP port (default %d; 0 = any free port, logged)\n"
+"  --io sim|none            I/O layer (default sim: outputs looped back to inputs)\n"
+"  --retain FILE            file that keeps RETAIN data across restarts (default: none)\n"
+"  --retain-interval MS     minimum time between two retain saves (default %d)\n"
+"  --retain-registers LIST  holding registers saved with RETAIN data, e.g. 1024-1039\n"
+"  --allow ADDR[/BITS]      accept clients only from these addresses (repeatable)\n"
+"  --max-clients N          concurrent client limit (default %d)\n"
+"  --writable-coils LIST    coils the host may write (default " DEFAULT_WRITABLE_COILS ", 'none')\n"
+"  --writable-registers LIST  holding registers the host may write\n"
+"                           (default " DEFAULT_WRITABLE_REGISTERS ", 'none')\n"
+"  --no-rt                  do not ask for SCHED_FIFO\n"
+"  --rt-priority N          SCHED_FIFO priority of the scan thread (default %d)\n"
+"  --status auto|tty|log|off  live status line (auto: on a terminal, else log lines)\n"
+"  --status-interval S      seconds between status log lines when not on a terminal (default 10)\n"
+"  --duration S             stop after S seconds (benchmarks; default: run until SIGINT/SIGTERM)\n"
+"  --version, --help\n"
+"\n"
+"Diagnostics are in input registers %u-%u (see runtime.h).  Exit status: 0 after\n"
+"SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error.\n",
+            DEFAULT_PORT, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_RT_PRIORITY,
+            DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
+}
+
+static int usage_error(const char *fmt, const char *arg)
+{
+    fprintf(stderr, RT_NAME ": error: ");
+    fprintf(stderr, fmt, arg);
+    fprintf(stderr, "\n(try --help)\n");
+    return 2;
+}
+
+static bool parse_long(const char *s, long lo, long hi, long *out)
+{
+    char *end;
+    errno = 0;
+    long v = strtol(s, &end, 10);
+    if (errno || end == s || *end || v < lo || v > hi)
+        return false;
+    *out = v;
+    return true;
+}
+
+static bool parse_double(const char *s, double lo, double *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end || !(v >= lo))
+        return false;
+    *out = v;
+    return true;
+}
+
+static int add_allow(rt_options_t *o, const char *text)
+{
+    char buf[64];
+    const char *p = text;
+
+    while (*p) {
+        size_t n = strcspn(p, ",");
+        if (n == 0 || n >= sizeof buf)
+            return -1;
+        memcpy(buf, p, n);
+        buf[n] = 0;
+        p += n + (p[n] == ',');
+
+        long bits = 32;
+        char *slash = strchr(buf, '/');
+        if (slash) {
+            *slash = 0;
+            if (!parse_long(slash + 1, 0, 32, &bits))
+                return -1;
+        }
+        struct in_addr ia;
+        if (inet_pton(AF_INET, buf, &ia) != 1 || o->n_allow >= RT_MAX_ALLOW)
+            return -1;
+        uint32_t mask = bits == 0 ? 0 : 0xffffffffu << (32 - bits);
+        o->allow[o->n_allow].mask = mask;
+        o->allow[o->n_allow].addr = ntohl(ia.s_addr) & mask;
+        o->n_allow++;
+    }
+    return 0;
+}
+
+static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char *what)
+{
+    char err[160];
+
+    memset(s, 0, sizeof *s);
+    if (strcmp(text, "none") == 0)
+        return 0;
+    if (addr_set_parse(s, text, limit, err, sizeof err) != 0) {
+        fprintf(stderr, RT_NAME ": error: %s: %s\n", what, err);
+        return 2;
+    }
+    return 0;
+}
+
+enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
+       OPT_MAX_CLIENTS, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
+       OPT_STATUS_INTERVAL, OPT_DURATION, OPT_VERSION, OPT_HELP };
+
+static int parse_options(int argc, char **argv, rt_options_t *o)
+{
+    static const struct option longopts[] = {
+        { "bind", required_argument, NULL, OPT_BIND },
+        { "port", required_argument, NULL, OPT_PORT },
+        { "io", required_argument, NULL, OPT_IO },
+        { "retain", required_argument, NULL, OPT_RETAIN },
+        { "retain-interval", required_argument, NULL, OPT_RETAIN_INTERVAL },
+        { "retain-registers", required_argument, NULL, OPT_RETAIN_REGISTERS },
+        { "allow", required_argument, NULL, OPT_ALLOW },
+        { "max-clients", required_argument, NULL, OPT_MAX_CLIENTS },
+        { "writable-coils", required_argument, NULL, OPT_WRITABLE_COILS },
+        { "writable-registers", required_argument, NULL, OPT_WRITABLE_REGISTERS },
+        { "no-rt", no_argument, NULL, OPT_NO_RT },
+        { "rt-priority", required_argument, NULL, OPT_RT_PRIORITY },
+        { "status", required_argument, NULL, OPT_STATUS },
+        { "status-interval", required_argument, NULL, OPT_STATUS_INTERVAL },
+        { "duration", required_argument, NULL, OPT_DURATION },
+        { "version", no_argument, NULL, OPT_VERSION },
+        { "help", no_argument, NULL, OPT_HELP },
+        { NULL, 0, NULL, 0 },
+    };
+    char err[160];
+    long v;
+    int c, rc;
+
+    memset(o, 0, sizeof *o);
+    snprintf(o->bind, sizeof o->bind, "127.0.0.1");
+    o->port = DEFAULT_PORT;
+    o->io = &io_sim_layer;
+    o->retain_interval_ms = DEFAULT_RETAIN_INTERVAL_MS;
+    o->max_clients = DEFAULT_MAX_CLIENTS;
+    o->realtime = true;
+    o->rt_priority = DEFAULT_RT_PRIORITY;
+    o->status = STATUS_AUTO;
+    o->status_interval_s = 10;
+    addr_set_parse(&o->writable_coils, DEFAULT_WRITABLE_COILS, MAP_BITS, err, sizeof err);
+    addr_set_parse(&o->writable_registers, DEFAULT_WRITABLE_REGISTERS, MAP_HOLDING, err, sizeof err);
+
+    opterr = 0;
+    while ((c = getopt_long(argc, argv, "", longopts, NULL)) != -1) {
+        switch (c) {
+        case OPT_BIND: {
+            struct in_addr ia;
+            if (strlen(optarg) >= sizeof o->bind || inet_pton(AF_INET, optarg, &ia) != 1)
+                return usage_error("--bind: '%s' is not an IPv4 address", optarg);
+            snprintf(o->bind, sizeof o->bind, "%s", optarg);
+            break;
+        }
+        case OPT_PORT:
+            if (!parse_long(optarg, 0, 65535, &v))
+                return usage_error("--port: '%s' is not a port number 0..65535", optarg);
+            o->port = (int)v;
+            break;
+        case OPT_IO:
+            if (strcmp(optarg, "sim") == 0)
+                o->io = &io_sim_layer;
+            else if (strcmp(optarg, "none") == 0)
+                o->io = &io_none_layer;
+            else
+                return usage_error("--io: unknown I/O layer '%s' (sim or none)", optarg);
+            break;
+        case OPT_RETAIN:
+            o->retain_path = optarg;
+            break;
+        case OPT_RETAIN_INTERVAL:
+            if (!parse_long(optarg, 0, 3600000, &v))
+                return usage_error("--retain-interval: '%s' is not a number of milliseconds", optarg);
+            o->retain_interval_ms = (int)v;
+            break;
+        case OPT_RETAIN_REGISTERS:
+            if ((rc = parse_set(&o->retain_registers, optarg, MAP_HOLDING, "--retain-registers")) != 0)
+                return rc;
+            o->have_retain_registers = strcmp(optarg, "none") != 0;
+            break;
+        case OPT_ALLOW:
+            if (add_allow(o, optarg) != 0)
+                return usage_error("--allow: '%s' is not an IPv4 address or ADDR/BITS (at most 32 entries)",
+                                   optarg);
+            break;
+        case OPT_MAX_CLIENTS:
+            if (!parse_long(optarg, 1, 256, &v))
+                return usage_error("--max-clients: '%s' is not a number 1..256", optarg);
+            o->max_clients = (int)v;
+            break;
+        case OPT_WRITABLE_COILS:
+            if ((rc = parse_set(&o->writable_coils, optarg, MAP_BITS, "--writable-coils")) != 0)
+                return rc;
+            break;
+        case OPT_WRITABLE_REGISTERS:
+            if ((rc = parse_set(&o->writable_registers, optarg, MAP_HOLDING, "--writable-registers")) != 0)
+                return rc;
+            break;
+        case OPT_NO_RT:
+            o->realtime = false;
+            break;
+        case OPT_RT_PRIORITY:
+            if (!parse_long(optarg, 1, 99, &v))
+                return usage_error("--rt-priority: '%s' is not a number 1..99", optarg);
+            o->rt_priority = (int)v;
+            break;
+        case OPT_STATUS:
+            if (strcmp(optarg, "auto") == 0) o->status = STATUS_AUTO;
+            else if (strcmp(optarg, "tty") == 0) o->status = STATUS_TTY;
+            else if (strcmp(optarg, "log") == 0) o->status = STATUS_LOG;
+            else if (strcmp(optarg, "off") == 0) o->status = STATUS_OFF;
+            else return usage_error("--status: '%s' is not auto, tty, log or off", optarg);
+            break;
+        case OPT_STATUS_INTERVAL:
+            if (!parse_double(optarg, 0.1, &o->status_interval_s))
+                return usage_error("--status-interval: '%s' is not a number of seconds >= 0.1", optarg);
+            break;
+        case OPT_DURATION:
+            if (!parse_double(optarg, 0.0, &o->duration_s))
+                return usage_error("--duration: '%s' is not a number of seconds", optarg);
+            break;
+        case OPT_VERSION:
+            printf(RT_NAME " " RT_VERSION " (ABI %u)\n", PLC_ABI_VERSION);
+            exit(0);
+        case OPT_HELP:
+            usage(stdout);
+            exit(0);
+        default:
+            return usage_error("unknown or incomplete option '%s'", argv[optind - 1]);
+        }
+    }
+    if (optind < argc)
+        return usage_error("unexpected argument '%s'", argv[optind]);
+    return 0;
+}
+
+/* ------------------------------------------------------------- program */
+
+static int check_program(runtime_t *rt)
+{
+    const plc_program_t *p = rt->prog;
+
+    if (p->abi_version != PLC_ABI_VERSION) {
+        log_msg(rt->log, LOG_ERROR, "program built for ABI %u, this runtime speaks ABI %u", p->abi_version,
+                PLC_ABI_VERSION);
+        return -1;
+    }
+    if (!p->init || !p->run || !p->clock_ns || (p->n_located && !p->located) || (p->n_vars && !p->vars)) {
+        log_msg(rt->log, LOG_ERROR, "program description incomplete (init, run, clock or tables missing)");
+        return -1;
+    }
+    rt->period_ns = p->base_tick_ns;
+    if (rt->period_ns == 0) {
+        rt->period_ns = FALLBACK_TICK_NS;
+        log_msg(rt->log, LOG_WARN, "program declares no task interval; scanning every %.0f ms",
+                FALLBACK_TICK_NS / 1e6);
+    }
+    for (uint32_t i = 0; i < p->n_tasks; i++) {
+        const plc_task_t *t = &p->tasks[i];
+        log_msg(rt->log, LOG_INFO, "task %s: every %" PRIu64 " us (%u base ticks), priority %d",
+                t->name ? t->name : "?", (uint64_t)t->interval_ns / 1000u, t->every, t->priority);
+    }
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    static runtime_t rt;      /* large (images, histograms): static storage, passed by pointer */
+    char err[256];
+    int rc, status = 1;
+    sigset_t block;
+
+    rc = parse_options(argc, argv, &rt.opt);
+    if (rc != 0)
+        return rc;
+    rt.prog = &plc_program;
+    pthread_mutex_init(&rt.lock, NULL);
+
+    /* Every thread created from here on inherits the blocked signals. */
+    sigemptyset(&block);
+    sigaddset(&block, SIGINT);
+    sigaddset(&block, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &block, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    if (log_open(&rt, &rt.log) != 0) {
+        fprintf(stderr, RT_NAME ": error: cannot start the log thread\n");
+        return 1;
+    }
+    log_msg(rt.log, LOG_INFO, RT_NAME " " RT_VERSION ", program %s, I/O layer %s (%s)",
+            rt.prog->config_name ? rt.prog->config_name : "?", rt.opt.io->name, rt.opt.io->description);
+    if (check_program(&rt) != 0)
+        goto out_log;
+
+    rt.prog->init();
+    if (image_bind_program(&rt, err, sizeof err) != 0) {
+        log_msg(rt.log, LOG_ERROR, "%s", err);
+        goto out_log;
+    }
+    if (rt.opt.io->open(&rt.io_state, err, sizeof err) != 0) {
+        log_msg(rt.log, LOG_ERROR, "I/O layer %s: %s", rt.opt.io->name, err);
+        goto out_log;
+    }
+    if (rt.opt.io == &io_sim_layer)
+        rt.flags |= DIAG_FLAG_SIM_IO;
+    if (retain_open(&rt, &rt.retain) != 0)
+        goto out_io;
+
+    pthread_mutex_lock(&rt.lock);
+    image_publish(&rt);
+    pthread_mutex_unlock(&rt.lock);
+
+    if (modbus_server_start(&rt, &rt.server) != 0)
+        goto out_retain;
+
+    scan_setup_realtime(&rt);
+    status = scan_run(&rt);
+
+    /* Outputs are safe now; flush retained data before anything else. */
+    retain_close(&rt);
+    modbus_server_stop(rt.server);
+    goto out_io;
+out_retain:
+    retain_close(&rt);
+out_io:
+    rt.opt.io->close(rt.io_state);
+out_log:
+    if (status == 0)
+        log_msg(rt.log, LOG_INFO, "stopped");
+    log_close(rt.log);
+    pthread_mutex_destroy(&rt.lock);
+    return status;
+}

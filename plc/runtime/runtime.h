@@ -1,0 +1,299 @@
+/*
+ * runtime.h - the soft-PLC runtime's own declarations.
+ *
+ * One runtime struct (runtime_t) is built by main.c and passed explicitly to
+ * every part; nothing below keeps state in globals.  The parts and their jobs:
+ *
+ *   image.c          the two I/O images (program side and Modbus side), the
+ *                    OpenPLC address map, host writes applied between scans
+ *   scan.c           the periodic scan loop, its clock and its statistics
+ *   modbus_server.c  Modbus/TCP server thread on libmodbus
+ *   retain.c         RETAIN variables saved atomically and restored at start
+ *   io_sim.c/io_none.c  the physical side of the image, behind io_layer_t
+ *   log.c            log lines and the live status line
+ *   main.c           options, start-up and orderly shutdown
+ *
+ * Data flow of one scan:  io inputs -> program image <- host writes (queued)
+ *   -> run(tick) -> program image -> Modbus image (published) -> io outputs.
+ */
+#ifndef PLC_RUNTIME_H
+#define PLC_RUNTIME_H
+
+#include <pthread.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include <stddef.h>
+
+#include "plc_abi.h"
+
+#define RT_NAME "plc-runtime"
+#define RT_VERSION "0.1.0"
+
+/* ------------------------------------------------------------ address map */
+
+/* OpenPLC's address map (SPEC section 6). */
+#define MAP_BITS        800u    /* %IX0.0..%IX99.7, %QX0.0..%QX99.7 */
+#define MAP_WORDS       1024u   /* %IW, %QW, %MW, %MD, %ML: 1024 each */
+#define MAP_HOLD_QW     0u      /* holding registers of %QW0.. */
+#define MAP_HOLD_MW     1024u   /* holding registers of %MW0.. */
+#define MAP_HOLD_MD     2048u   /* %MDn at 2048+2n (high word first) */
+#define MAP_HOLD_ML     4096u   /* %MLn at 4096+4n (high word first) */
+#define MAP_HOLDING     8192u   /* number of holding registers */
+
+/*
+ * Diagnostic block: input registers 1024..1087, just past %IW1023, so no
+ * located variable of any program can overlap it (OpenPLC has no input
+ * registers there).  32-bit values take two registers, 64-bit four, high word
+ * first like %MD.  Times are microseconds.  See DIAG_* below for the layout.
+ */
+#define DIAG_BASE       1024u
+#define DIAG_COUNT      64u
+#define MAP_INPUT_REGS  (DIAG_BASE + DIAG_COUNT)
+
+enum diag_offset {
+    DIAG_VERSION = 0,          /* layout version, 1 */
+    DIAG_STATE = 1,            /* plc_state_t */
+    DIAG_FAULT_KIND = 2,       /* plc_fault_kind_t of the fault that stopped the program */
+    DIAG_FAULT_LINE = 3,       /* source line of the fault (saturated to 65535) */
+    DIAG_FAULT_COL = 4,        /* source column of the fault */
+    DIAG_FLAGS = 5,            /* DIAG_FLAG_* bits */
+    DIAG_BASE_TICK_US = 6,     /* u32: scan period */
+    DIAG_SCAN_COUNT = 8,       /* u64: scans run since start */
+    DIAG_SCAN_LAST_US = 12,    /* u32 each: scan (execution) time */
+    DIAG_SCAN_MIN_US = 14,
+    DIAG_SCAN_MAX_US = 16,
+    DIAG_SCAN_MEAN_US = 18,
+    DIAG_SCAN_P99_US = 20,
+    DIAG_WAKE_LAST_US = 22,    /* u32 each: wake-up latency after the deadline */
+    DIAG_WAKE_MIN_US = 24,
+    DIAG_WAKE_MAX_US = 26,
+    DIAG_WAKE_MEAN_US = 28,
+    DIAG_WAKE_P99_US = 30,
+    DIAG_OVERRUNS = 32,        /* u32: scans that ended after the next deadline */
+    DIAG_CLIENTS = 34,         /* u16: Modbus clients connected */
+    DIAG_REQUESTS = 36,        /* u32: Modbus requests answered */
+    DIAG_EXCEPTIONS = 38,      /* u32: of those, exception responses */
+    DIAG_REFUSED = 40,         /* u32: connections refused (allowlist, limit) */
+    DIAG_RETAIN_SAVES = 42,    /* u32: retain files written */
+    DIAG_SCAN_P50_US = 44,     /* u32 */
+    DIAG_WAKE_P50_US = 46,     /* u32 */
+    DIAG_UPTIME_S = 48,        /* u32: seconds since the scan loop started */
+    DIAG_SKIPPED = 50          /* u32: deadlines skipped after long overruns */
+};
+
+#define DIAG_FLAG_REALTIME        0x0001u  /* scan thread runs SCHED_FIFO */
+#define DIAG_FLAG_RETAIN_RESTORED 0x0002u  /* retained values restored at start */
+#define DIAG_FLAG_RETAIN_REJECTED 0x0004u  /* retain file found but rejected */
+#define DIAG_FLAG_RETAIN_ERROR    0x0008u  /* the last retain save failed */
+#define DIAG_FLAG_SIM_IO          0x0010u  /* io layer is "sim" */
+
+typedef enum plc_state {
+    PLC_STATE_STARTING = 0,
+    PLC_STATE_RUNNING = 1,
+    PLC_STATE_FAULTED = 2,     /* program stopped, outputs safe, Modbus serving */
+    PLC_STATE_STOPPING = 3
+} plc_state_t;
+
+/* Extra fault kind for a run() result that plc_fault_kind_t does not name. */
+#define RT_FAULT_UNKNOWN 99
+
+/* ---------------------------------------------------------------- ranges */
+
+/* A set of table addresses as a bitmap (host-writable ranges, retained). */
+typedef struct addr_set {
+    uint64_t bits[MAP_HOLDING / 64];
+} addr_set_t;
+
+static inline void addr_set_add(addr_set_t *s, unsigned a)
+{
+    s->bits[a / 64] |= (uint64_t)1 << (a % 64);
+}
+
+static inline bool addr_set_has(const addr_set_t *s, unsigned a)
+{
+    return (s->bits[a / 64] >> (a % 64)) & 1u;
+}
+
+/* Parse "400-799,1024,2048-4095" into *s; addresses must be < limit.
+ * Returns 0, or -1 with a message in err. */
+int addr_set_parse(addr_set_t *s, const char *text, unsigned limit, char *err, size_t errlen);
+
+/* -------------------------------------------------------------- images */
+
+/* 32- and 64-bit memory slots: the program may store DINT, REAL, LINT, LREAL... */
+typedef union { uint32_t u; int32_t i; float f; } slot32_t;
+typedef union { uint64_t u; int64_t i; double f; } slot64_t;
+
+/* The program's view: located variables point into this, only the scan
+ * thread touches it. */
+typedef struct prog_image {
+    plc_bool_t ix[MAP_BITS];
+    plc_bool_t qx[MAP_BITS];
+    uint16_t iw[MAP_WORDS];
+    uint16_t qw[MAP_WORDS];
+    uint16_t mw[MAP_WORDS];
+    slot32_t md[MAP_WORDS];
+    slot64_t ml[MAP_WORDS];
+} prog_image_t;
+
+/* The Modbus view, guarded by runtime_t.lock.  `pending_*` hold host writes
+ * not yet applied to the program; `dirty_*` say which. */
+typedef struct bus_image {
+    uint8_t coils[MAP_BITS];
+    uint8_t discrete[MAP_BITS];
+    uint16_t input_regs[MAP_INPUT_REGS];
+    uint16_t holding[MAP_HOLDING];
+    uint8_t pending_coils[MAP_BITS];
+    uint16_t pending_holding[MAP_HOLDING];
+    addr_set_t dirty_coils;
+    addr_set_t dirty_holding;
+    bool any_dirty;
+} bus_image_t;
+
+/* ------------------------------------------------------------- io layer */
+
+/* The physical side of the image.  read_inputs() runs at the start of each
+ * scan, write_outputs() at its end (with all-zero outputs while the program
+ * is stopped).  Both run on the scan thread and must not block for long. */
+typedef struct io_layer {
+    const char *name;
+    const char *description;
+    int (*open)(void **state, char *err, size_t errlen);
+    void (*read_inputs)(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw[MAP_WORDS]);
+    void (*write_outputs)(void *state, const plc_bool_t qx[MAP_BITS], const uint16_t qw[MAP_WORDS]);
+    void (*close)(void *state);
+} io_layer_t;
+
+extern const io_layer_t io_sim_layer;
+extern const io_layer_t io_none_layer;
+
+/* -------------------------------------------------------------- options */
+
+#define RT_MAX_ALLOW 32
+
+typedef struct allow_entry {
+    uint32_t addr;   /* host byte order */
+    uint32_t mask;
+} allow_entry_t;
+
+typedef enum status_mode { STATUS_AUTO, STATUS_TTY, STATUS_LOG, STATUS_OFF } status_mode_t;
+
+typedef struct rt_options {
+    char bind[64];
+    int port;                      /* 0: any free port (logged) */
+    const io_layer_t *io;
+    const char *retain_path;       /* NULL: RETAIN not persisted */
+    int retain_interval_ms;        /* minimum time between two saves */
+    addr_set_t retain_registers;   /* holding registers saved with RETAIN */
+    bool have_retain_registers;
+    allow_entry_t allow[RT_MAX_ALLOW];
+    int n_allow;                   /* 0: any client */
+    int max_clients;
+    addr_set_t writable_coils;
+    addr_set_t writable_registers;
+    bool realtime;
+    int rt_priority;
+    status_mode_t status;
+    double status_interval_s;      /* log-line status period when not on a TTY */
+    double duration_s;             /* stop after this long (0: run until signalled) */
+} rt_options_t;
+
+/* ------------------------------------------------------------ statistics */
+
+/* Log-linear histogram of nanosecond values (<1% relative error). */
+#define HIST_SUB_BITS 7u
+#define HIST_LINEAR (2u << HIST_SUB_BITS)           /* 256 exact buckets */
+#define HIST_BUCKETS (HIST_LINEAR + 33u * (1u << HIST_SUB_BITS))
+
+typedef struct histogram {
+    uint32_t count[HIST_BUCKETS];
+    uint64_t n;
+    uint64_t sum_ns;
+    uint64_t min_ns;
+    uint64_t max_ns;
+    uint64_t last_ns;
+} histogram_t;
+
+void hist_add(histogram_t *h, uint64_t ns);
+uint64_t hist_percentile(const histogram_t *h, double p);
+
+typedef struct scan_stats {
+    histogram_t scan;              /* execution time of a scan */
+    histogram_t wake;              /* wake-up latency after the deadline */
+    uint64_t scans;
+    uint32_t overruns;
+    uint32_t skipped;
+    uint64_t p50_scan_ns, p99_scan_ns, p50_wake_ns, p99_wake_ns;  /* refreshed periodically */
+} scan_stats_t;
+
+/* ---------------------------------------------------------------- parts */
+
+typedef struct log_sink log_sink_t;
+typedef struct modbus_server modbus_server_t;
+typedef struct retain_store retain_store_t;
+
+typedef struct runtime {
+    rt_options_t opt;
+    const plc_program_t *prog;
+    uint64_t period_ns;
+
+    prog_image_t pimg;             /* scan thread only */
+
+    pthread_mutex_t lock;          /* guards bimg */
+    bus_image_t bimg;
+
+    void *io_state;
+    log_sink_t *log;
+    modbus_server_t *server;
+    retain_store_t *retain;
+
+    plc_state_t state;             /* written by the scan thread only */
+    int32_t fault_kind;            /* why the program stopped (scan thread only) */
+    int32_t fault_line, fault_col;
+    scan_stats_t stats;            /* scan thread only; published to diag */
+    uint16_t flags;                /* DIAG_FLAG_*, scan thread only */
+} runtime_t;
+
+/* image.c */
+int image_bind_program(runtime_t *rt, char *err, size_t errlen);
+void image_take_host_writes(runtime_t *rt);          /* caller holds rt->lock */
+void image_publish(runtime_t *rt);                   /* caller holds rt->lock */
+void image_make_outputs_safe(prog_image_t *p);
+void diag_put16(bus_image_t *b, unsigned off, uint16_t v);
+void diag_put32(bus_image_t *b, unsigned off, uint32_t v);
+void diag_put64(bus_image_t *b, unsigned off, uint64_t v);
+uint32_t diag_get32(const bus_image_t *b, unsigned off);
+uint64_t diag_get64(const bus_image_t *b, unsigned off);
+/* Host writes, caller holds rt->lock and has checked the addresses. */
+void image_host_write_coil(bus_image_t *b, unsigned addr, bool on);
+void image_host_write_register(bus_image_t *b, unsigned addr, uint16_t v);
+/* The program image's view of a holding register (for retain). */
+uint16_t image_prog_holding(const prog_image_t *p, unsigned addr);
+void image_prog_set_holding(prog_image_t *p, unsigned addr, uint16_t v);
+
+/* scan.c */
+void scan_setup_realtime(runtime_t *rt);
+int scan_run(runtime_t *rt);
+uint64_t now_ns(void);
+
+/* modbus_server.c */
+int modbus_server_start(runtime_t *rt, modbus_server_t **out);
+void modbus_server_stop(modbus_server_t *srv);
+
+/* retain.c */
+int retain_open(runtime_t *rt, retain_store_t **out);   /* restores, starts the writer */
+void retain_after_scan(runtime_t *rt, uint64_t now);    /* scan thread, never blocks */
+void retain_capture(runtime_t *rt);                     /* take the current values, no save */
+void retain_close(runtime_t *rt);                       /* final save, joins the writer */
+uint32_t retain_saves(const retain_store_t *rs);
+bool retain_last_failed(const retain_store_t *rs);
+uint32_t crc32_update(uint32_t crc, const void *data, size_t len);
+
+/* log.c */
+typedef enum log_level { LOG_INFO, LOG_WARN, LOG_ERROR } log_level_t;
+int log_open(runtime_t *rt, log_sink_t **out);
+void log_close(log_sink_t *ls);
+void log_msg(log_sink_t *ls, log_level_t level, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+#endif /* PLC_RUNTIME_H */

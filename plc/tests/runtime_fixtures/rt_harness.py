@@ -1,0 +1,314 @@
+"""Helpers for the runtime tests: build the runtime, run it, talk Modbus to it.
+
+Set PLC_RUNTIME_SANITIZE=1 to run the same tests against the AddressSanitizer +
+UndefinedBehaviorSanitizer build of the runtime.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+FIXTURES = Path(__file__).resolve().parent
+PLC_ROOT = FIXTURES.parent.parent                      # .../plc
+sys.path.insert(0, str(PLC_ROOT))
+from plc.runtime import build_runtime  # noqa: E402
+
+SANITIZE = os.environ.get("PLC_RUNTIME_SANITIZE", "") not in ("", "0")
+CACHE = Path(tempfile.gettempdir()) / "atc-plc-runtime-tests"
+BASIC = FIXTURES / "fixture_basic.c"
+SLOW = 4.0 if SANITIZE else 1.0                        # time-out multiplier
+
+SANITIZER_ENV = {
+    "ASAN_OPTIONS": "abort_on_error=0:halt_on_error=1:detect_leaks=1:exitcode=86",
+    "UBSAN_OPTIONS": "halt_on_error=1:print_stacktrace=1:exitcode=87",
+}
+
+
+def runtime_binary(program_c: Path = BASIC, **defines: object) -> Path:
+    """The runtime built with a fixture program; `defines` become #defines in a wrapper."""
+    if defines:
+        CACHE.mkdir(parents=True, exist_ok=True)
+        lines = [f"#define {k} {v}" for k, v in sorted(defines.items())]
+        lines.append(f'#include "{program_c}"')
+        text = "\n".join(lines) + "\n"
+        key = hashlib.sha256(text.encode()).hexdigest()[:12]
+        wrapper = CACHE / f"wrap_{program_c.stem}_{key}.c"
+        if not wrapper.exists() or wrapper.read_text() != text:
+            wrapper.write_text(text)
+        program_c = wrapper
+    return build_runtime(program_c, CACHE, sanitize=SANITIZE)
+
+
+def mbload_binary() -> Path:
+    """The load client (plain sockets, no sanitizer: it is the tester, not the tested)."""
+    src = FIXTURES / "mbload.c"
+    CACHE.mkdir(parents=True, exist_ok=True)
+    out = CACHE / f"mbload-{int(src.stat().st_mtime_ns)}"
+    if not out.exists():
+        tmp = out.with_suffix(f".{os.getpid()}")
+        subprocess.run(["gcc", "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", str(src), "-o", str(tmp),
+                        "-lpthread"], check=True)
+        os.replace(tmp, out)
+    return out
+
+
+def wait_until(predicate: Callable[[], object], timeout: float, what: str, step: float = 0.01):
+    """Poll predicate until it returns something true; fail after timeout seconds."""
+    deadline = time.monotonic() + timeout * SLOW
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout * SLOW:.1f} s waiting for {what}")
+        time.sleep(step)
+
+
+class Runtime:
+    """A running runtime process; its stderr is collected line by line."""
+
+    def __init__(self, binary: Path, *args: str, cwd: Path | None = None, raw: bool = False):
+        """Start `binary` with test defaults (any free port, no status lines) before `args`,
+        or with exactly `args` when raw."""
+        env = dict(os.environ)
+        env.update(SANITIZER_ENV)
+        defaults = [] if raw else ["--port", "0", "--status", "log", "--status-interval", "3600"]
+        self.argv = [str(binary), *defaults, *args]
+        self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, cwd=cwd, env=env, text=True,
+                                     start_new_session=True)
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self.port = 0
+
+    def _read(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+        with self._cond:
+            self._cond.notify_all()
+
+    @property
+    def log(self) -> str:
+        with self._cond:
+            return "\n".join(self.lines)
+
+    def wait_for(self, pattern: str, timeout: float = 5.0) -> re.Match:
+        """Wait for a log line matching pattern (regex); return the match."""
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout * SLOW
+        with self._cond:
+            seen = 0
+            while True:
+                for line in self.lines[seen:]:
+                    m = rx.search(line)
+                    if m:
+                        return m
+                seen = len(self.lines)
+                left = deadline - time.monotonic()
+                if left <= 0 or (self.proc.poll() is not None and not self._reader.is_alive()):
+                    raise AssertionError(f"no log line matching {pattern!r}; log so far:\n" + "\n".join(self.lines))
+                self._cond.wait(min(left, 0.1))
+
+    def start(self) -> "Runtime":
+        m = self.wait_for(r"modbus: listening on [\d.]+:(\d+)")
+        self.port = int(m.group(1))
+        self.wait_for(r"running ")
+        return self
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> int:
+        """Signal the runtime and wait for it; return its exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            rc = self.proc.wait(timeout * SLOW)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(5)
+            raise AssertionError(f"runtime did not stop within {timeout * SLOW:.0f} s; log:\n{self.log}")
+        self._reader.join(5)
+        return rc
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(10)
+        self._reader.join(5)
+
+    def assert_clean_exit(self, rc: int) -> None:
+        log = self.log
+        assert rc == 0, f"exit status {rc}; log:\n{log}"
+        for marker in ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:"):
+            assert marker not in log, f"sanitizer report in the log:\n{log}"
+
+    def __enter__(self) -> "Runtime":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        if self.proc.poll() is None:
+            rc = self.stop()
+            if exc[0] is None:
+                self.assert_clean_exit(rc)
+        else:
+            self._reader.join(5)
+
+
+# ---------------------------------------------------------------------- Modbus client
+
+class ModbusError(Exception):
+    def __init__(self, function: int, code: int):
+        super().__init__(f"exception {code} to function {function}")
+        self.function = function
+        self.code = code
+
+
+class Client:
+    """A minimal Modbus/TCP client on a plain socket, one request at a time."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1", source: str | None = None, timeout: float = 3.0):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.sock.settimeout(timeout * SLOW)
+        if source:
+            self.sock.bind((source, 0))
+        self.sock.connect((host, port))
+        self.tid = 0
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def send_raw(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+    def recv_exact(self, n: int) -> bytes:
+        out = b""
+        while len(out) < n:
+            chunk = self.sock.recv(n - len(out))
+            if not chunk:
+                raise ConnectionError("connection closed by the server")
+            out += chunk
+        return out
+
+    def recv_frame(self) -> tuple[int, int, bytes]:
+        """Receive one response: (transaction id, unit, PDU)."""
+        head = self.recv_exact(7)
+        tid, proto, length, unit = struct.unpack(">HHHB", head)
+        assert proto == 0, f"protocol id {proto}"
+        assert 2 <= length <= 254, f"MBAP length {length}"
+        return tid, unit, self.recv_exact(length - 1)
+
+    def request(self, pdu: bytes, unit: int = 1) -> bytes:
+        self.tid = (self.tid + 1) & 0xFFFF
+        self.send_raw(struct.pack(">HHHB", self.tid, 0, len(pdu) + 1, unit) + pdu)
+        tid, runit, rsp = self.recv_frame()
+        assert tid == self.tid, f"transaction id {tid}, expected {self.tid}"
+        assert runit == unit, f"unit {runit}, expected {unit}"
+        if rsp[0] == pdu[0] | 0x80:
+            raise ModbusError(pdu[0], rsp[1])
+        assert rsp[0] == pdu[0], f"function {rsp[0]} in response to {pdu[0]}"
+        return rsp
+
+    # reads
+    def _read_bits(self, fc: int, addr: int, count: int) -> list[bool]:
+        rsp = self.request(struct.pack(">BHH", fc, addr, count))
+        assert rsp[1] == (count + 7) // 8 and len(rsp) == 2 + rsp[1]
+        return [bool(rsp[2 + i // 8] >> (i % 8) & 1) for i in range(count)]
+
+    def _read_regs(self, fc: int, addr: int, count: int) -> list[int]:
+        rsp = self.request(struct.pack(">BHH", fc, addr, count))
+        assert rsp[1] == 2 * count and len(rsp) == 2 + 2 * count
+        return list(struct.unpack(f">{count}H", rsp[2:]))
+
+    def read_coils(self, addr: int, count: int = 1) -> list[bool]:
+        return self._read_bits(1, addr, count)
+
+    def read_discrete(self, addr: int, count: int = 1) -> list[bool]:
+        return self._read_bits(2, addr, count)
+
+    def read_holding(self, addr: int, count: int = 1) -> list[int]:
+        return self._read_regs(3, addr, count)
+
+    def read_input(self, addr: int, count: int = 1) -> list[int]:
+        return self._read_regs(4, addr, count)
+
+    # writes
+    def write_coil(self, addr: int, on: bool) -> None:
+        pdu = struct.pack(">BHH", 5, addr, 0xFF00 if on else 0)
+        assert self.request(pdu) == pdu
+
+    def write_register(self, addr: int, value: int) -> None:
+        pdu = struct.pack(">BHH", 6, addr, value & 0xFFFF)
+        assert self.request(pdu) == pdu
+
+    def write_coils(self, addr: int, values: list[bool]) -> None:
+        packed = bytearray((len(values) + 7) // 8)
+        for i, v in enumerate(values):
+            if v:
+                packed[i // 8] |= 1 << (i % 8)
+        rsp = self.request(struct.pack(">BHHB", 15, addr, len(values), len(packed)) + bytes(packed))
+        assert rsp == struct.pack(">BHH", 15, addr, len(values))
+
+    def write_registers(self, addr: int, values: list[int]) -> None:
+        data = struct.pack(f">{len(values)}H", *[v & 0xFFFF for v in values])
+        rsp = self.request(struct.pack(">BHHB", 16, addr, len(values), len(data)) + data)
+        assert rsp == struct.pack(">BHH", 16, addr, len(values))
+
+
+# --------------------------------------------------------------- diagnostic registers
+
+DIAG_BASE = 1024
+DIAG = {  # offset, words
+    "version": (0, 1), "state": (1, 1), "fault_kind": (2, 1), "fault_line": (3, 1), "fault_col": (4, 1),
+    "flags": (5, 1), "base_tick_us": (6, 2), "scans": (8, 4),
+    "scan_last_us": (12, 2), "scan_min_us": (14, 2), "scan_max_us": (16, 2), "scan_mean_us": (18, 2),
+    "scan_p99_us": (20, 2), "wake_last_us": (22, 2), "wake_min_us": (24, 2), "wake_max_us": (26, 2),
+    "wake_mean_us": (28, 2), "wake_p99_us": (30, 2), "overruns": (32, 2), "clients": (34, 1),
+    "requests": (36, 2), "exceptions": (38, 2), "refused": (40, 2), "retain_saves": (42, 2),
+    "scan_p50_us": (44, 2), "wake_p50_us": (46, 2), "uptime_s": (48, 2), "skipped": (50, 2),
+}
+STATE_RUNNING, STATE_FAULTED = 1, 2
+FLAG_RETAIN_RESTORED, FLAG_RETAIN_REJECTED = 0x2, 0x4
+
+
+def read_diag(client: Client) -> dict[str, int]:
+    regs = client.read_input(DIAG_BASE, 64)
+    out = {}
+    for name, (off, words) in DIAG.items():
+        value = 0
+        for w in regs[off:off + words]:
+            value = value << 16 | w
+        out[name] = value
+    return out
+
+
+def md(words: list[int]) -> int:
+    """Two registers, high word first, as a signed 32-bit value."""
+    v = words[0] << 16 | words[1]
+    return v - (1 << 32) if v & 0x80000000 else v
+
+
+def md_words(value: int) -> list[int]:
+    v = value & 0xFFFFFFFF
+    return [v >> 16, v & 0xFFFF]

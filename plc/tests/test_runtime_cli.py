@@ -1,0 +1,208 @@
+"""plc.runtime: building the runtime with a program, the run configuration, `plc run`.
+
+The `plc run` tests start `python -m plc.runtime PROGRAM.c ...`, the same code path that
+the `plc run` subcommand uses once the ST compiler has produced the C file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
+import rt_harness as h  # noqa: E402
+from plc import runtime  # noqa: E402
+
+PLC_ROOT = Path(__file__).resolve().parent.parent
+
+
+# ----------------------------------------------------------------------- building
+
+def test_build_is_cached_by_content(tmp_path):
+    program = tmp_path / "program.c"
+    shutil.copy(h.BASIC, program)
+    out = tmp_path / "build"
+    first = runtime.build_runtime(program, out, sanitize=h.SANITIZE)
+    stamp = first.stat().st_mtime_ns
+    assert runtime.build_runtime(program, out, sanitize=h.SANITIZE) == first
+    assert first.stat().st_mtime_ns == stamp                       # not rebuilt
+    program.write_text(program.read_text() + "\n/* changed */\n")
+    second = runtime.build_runtime(program, out, sanitize=h.SANITIZE)
+    assert second != first and second.is_file()
+    assert second.name.endswith("-asan") == h.SANITIZE
+    result = subprocess.run([str(second), "--version"], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 0 and "ABI 1" in result.stdout
+
+
+def test_a_changed_included_header_rebuilds(tmp_path):
+    (tmp_path / "values.h").write_text("#define FIXTURE_LAYOUT_HASH 1u\n")
+    program = tmp_path / "program.c"
+    program.write_text(f'#include "values.h"\n#include "{h.BASIC}"\n')
+    first = runtime.build_runtime(program, tmp_path / "build")
+    (tmp_path / "values.h").write_text("#define FIXTURE_LAYOUT_HASH 2u\n")
+    assert runtime.build_runtime(program, tmp_path / "build") != first
+
+
+def test_build_errors_are_plain_messages(tmp_path):
+    with pytest.raises(runtime.RuntimeBuildError, match=r"program C file .*missing\.c does not exist"):
+        runtime.build_runtime(tmp_path / "missing.c", tmp_path / "build")
+    bad = tmp_path / "bad.c"
+    bad.write_text("#include \"plc_abi.h\"\nconst plc_program_t plc_program = { .abi_version = };\n")
+    with pytest.raises(runtime.RuntimeBuildError) as e:
+        runtime.build_runtime(bad, tmp_path / "build")
+    assert "building the runtime with" in str(e.value) and "bad.c:2" in str(e.value)
+    result = subprocess.run([sys.executable, "-m", "plc.runtime", str(bad), "--build-only",
+                             "--build-dir", str(tmp_path / "build")], capture_output=True, text=True,
+                            cwd=PLC_ROOT, timeout=120)
+    assert result.returncode == 1
+    assert result.stderr.startswith("plc run: error: building the runtime with")
+    assert "Traceback" not in result.stderr
+    assert not list((tmp_path / "build").glob("plc-runtime-*"))    # no half-built executable left
+
+
+# ------------------------------------------------------------------------- config
+
+FULL_CONFIG = """
+[modbus]
+bind = "127.0.0.1"
+port = 5021
+max_clients = 4
+allow = ["127.0.0.1", "10.1.2.0/24"]
+writable_coils = ["400-799"]
+writable_registers = ["1024-1030", 2000]
+
+[io]
+layer = "none"
+
+[retain]
+file = "state/plc.retain"
+interval_ms = 50
+registers = ["1024-1027"]
+
+[scan]
+realtime = false
+rt_priority = 20
+status_interval_s = 2.5
+"""
+
+
+def test_a_full_config_is_read(tmp_path):
+    cfg_file = tmp_path / "plc.toml"
+    cfg_file.write_text(FULL_CONFIG)
+    cfg = runtime.load_config(cfg_file)
+    assert cfg == runtime.RunConfig(
+        bind="127.0.0.1", port=5021, max_clients=4, allow=["127.0.0.1/32", "10.1.2.0/24"],
+        writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none",
+        retain_file=tmp_path / "state" / "plc.retain", retain_interval_ms=50, retain_registers=["1024-1027"],
+        realtime=False, rt_priority=20, status_interval_s=2.5)
+    argv = runtime.runtime_argv(Path("/x/plc-runtime"), cfg)
+    assert argv[0] == "/x/plc-runtime"
+    pairs = dict(zip(argv[1::2], argv[2::2]))
+    assert pairs["--port"] == "5021" and pairs["--io"] == "none" and pairs["--max-clients"] == "4"
+    assert pairs["--allow"] == "127.0.0.1/32,10.1.2.0/24"
+    assert pairs["--writable-registers"] == "1024-1030,2000-2000"
+    assert pairs["--retain"] == str(tmp_path / "state" / "plc.retain")
+    assert "--no-rt" in argv
+
+
+def test_defaults_and_empty_writable_lists():
+    cfg = runtime.RunConfig(writable_coils=[], writable_registers=None)
+    argv = runtime.runtime_argv(Path("rt"), cfg)
+    assert argv[argv.index("--writable-coils") + 1] == "none"
+    assert "--writable-registers" not in argv                     # the runtime's documented default
+    assert argv[argv.index("--retain") + 1] == str(Path("var") / "plc.retain")
+    assert argv[argv.index("--bind") + 1] == "127.0.0.1" and argv[argv.index("--port") + 1] == "5020"
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[modbus\n", "invalid TOML"),
+    ("[network]\nport = 1\n", "unknown section [network]"),
+    ("[modbus]\nprot = 5020\n", "[modbus] unknown key 'prot'"),
+    ("modbus = 3\n", "'modbus' must be a section"),
+    ("[modbus]\nport = \"5020\"\n", "[modbus] port: expected an integer 0..65535, got '5020'"),
+    ("[modbus]\nport = 70000\n", "[modbus] port: expected an integer 0..65535"),
+    ("[modbus]\nport = true\n", "[modbus] port: expected an integer"),
+    ("[modbus]\nbind = \"localhost\"\n", "[modbus] bind: 'localhost' is not an IPv4 address"),
+    ("[modbus]\nallow = [\"10.0.0.0/33\"]\n", "[modbus] allow: '10.0.0.0/33' is not an IPv4 address"),
+    ("[modbus]\nmax_clients = 0\n", "[modbus] max_clients: expected an integer 1..256"),
+    ("[modbus]\nwritable_coils = [\"400-800\"]\n", "[modbus] writable_coils: range '400-800' is outside 0-799"),
+    ("[modbus]\nwritable_registers = [\"9-2\"]\n", "range '9-2' is outside"),
+    ("[modbus]\nwritable_registers = [\"abc\"]\n", "'abc' is not an address or a range"),
+    ("[modbus]\nwritable_registers = 12.5\n", "expected a list of ranges"),
+    ("[io]\nlayer = \"gpio\"\n", "[io] layer: expected \"sim\" or \"none\", got 'gpio'"),
+    ("[retain]\nfile = 3\n", "[retain] file: expected a file name"),
+    ("[retain]\ninterval_ms = -1\n", "[retain] interval_ms: expected an integer"),
+    ("[retain]\nregisters = [\"8192\"]\n", "[retain] registers: range '8192' is outside 0-8191"),
+    ("[scan]\nrealtime = \"yes\"\n", "[scan] realtime: expected true or false"),
+    ("[scan]\nrt_priority = 100\n", "[scan] rt_priority: expected an integer 1..99"),
+    ("[scan]\nstatus_interval_s = 0\n", "[scan] status_interval_s: expected a number of seconds >= 0.1"),
+])
+def test_bad_configs_are_rejected_with_the_place_and_the_reason(tmp_path, text, message):
+    cfg_file = tmp_path / "plc.toml"
+    cfg_file.write_text(text)
+    with pytest.raises(runtime.ConfigError) as e:
+        runtime.load_config(cfg_file)
+    assert str(e.value).startswith(str(cfg_file) + ": ") and message in str(e.value)
+
+
+def test_a_missing_config_file(tmp_path):
+    with pytest.raises(runtime.ConfigError, match="no such file"):
+        runtime.load_config(tmp_path / "absent.toml")
+
+
+# ------------------------------------------------------------------------ plc run
+
+def plc_run(*args: str) -> h.Runtime:
+    return h.Runtime(Path(sys.executable), "-m", "plc.runtime", str(h.BASIC), *args, cwd=PLC_ROOT, raw=True)
+
+
+def test_plc_run_serves_with_the_config_and_stops_cleanly(tmp_path):
+    cfg_file = tmp_path / "plc.toml"
+    cfg_file.write_text('[modbus]\nport = 1\nallow = ["127.0.0.1"]\nwritable_registers = ["1024-1030"]\n'
+                        '[scan]\nrealtime = false\n')
+    args = ["--config", str(cfg_file), "--port", "0", "--retain", str(tmp_path / "var" / "plc.retain"),
+            "--build-dir", str(h.CACHE)] + (["--sanitize"] if h.SANITIZE else [])
+    rt = plc_run(*args).start()                                    # --port 0 overrides the file's port 1
+    try:
+        with h.Client(rt.port) as c:
+            h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
+            c.write_register(1024, 5)
+            with pytest.raises(h.ModbusError) as e:
+                c.write_register(512, 5)                           # not in the configured ranges
+            assert e.value.code == 2
+        assert (tmp_path / "var").is_dir()
+        assert "clients allowed from 127.0.0.1/32" in rt.log
+        assert "real-time scheduling off" in rt.log
+    finally:
+        rc = rt.stop(signal.SIGTERM)
+    rt.assert_clean_exit(rc)
+    assert (tmp_path / "var" / "plc.retain").is_file(), rt.log
+
+
+def test_plc_run_rejects_a_bad_config_before_anything_runs(tmp_path):
+    cfg_file = tmp_path / "plc.toml"
+    cfg_file.write_text("[modbus]\nport = 99999\n")
+    build_dir = tmp_path / "build"
+    result = subprocess.run([sys.executable, "-m", "plc.runtime", str(h.BASIC), "--config", str(cfg_file),
+                             "--build-dir", str(build_dir)], capture_output=True, text=True, cwd=PLC_ROOT,
+                            timeout=60)
+    assert result.returncode == 1
+    assert result.stderr == f"plc run: error: {cfg_file}: [modbus] port: expected an integer 0..65535, got 99999\n"
+    assert not build_dir.exists()
+
+
+def test_run_arguments_can_be_added_to_any_parser():
+    parser = argparse.ArgumentParser()
+    runtime.add_run_arguments(parser)
+    args = parser.parse_args(["--bind", "127.0.0.1", "--port", "5021", "--io", "none", "--retain", "x.retain"])
+    assert (args.bind, args.port, args.io, args.retain, args.config) == ("127.0.0.1", 5021, "none",
+                                                                          Path("x.retain"), None)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--io", "gpio"])

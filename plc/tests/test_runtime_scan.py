@@ -1,0 +1,208 @@
+"""The runtime's scan loop: tasks, virtual clock, statistics, faults, signals, start-up checks.
+
+Runs against the plain build, or the ASan/UBSan build with PLC_RUNTIME_SANITIZE=1.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
+import rt_harness as h  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def binary() -> Path:
+    return h.runtime_binary()
+
+
+def run_to_end(binary: Path, *args: str, timeout: float = 20) -> tuple[int, str]:
+    result = subprocess.run([str(binary), *args], capture_output=True, timeout=timeout * h.SLOW,
+                            env={**os.environ, **h.SANITIZER_ENV}, stdin=subprocess.DEVNULL)
+    return result.returncode, result.stderr.decode(errors="replace")   # bytes: keep the \r of the status line
+
+
+def clock_and_tick(c: h.Client) -> tuple[int, int]:
+    words = c.read_holding(2060, 4)                              # %MD6 clock ms, %MD7 tick
+    return words[0] << 16 | words[1], words[2] << 16 | words[3]
+
+
+# ------------------------------------------------------------------- tasks, clock
+
+def test_program_clock_is_virtual_tick_times_base_tick(binary):
+    with h.Runtime(binary, "--no-rt") as rt, h.Client(rt.port) as c:
+        seen = set()
+        deadline = time.monotonic() + 5 * h.SLOW
+        while len(seen) < 5:
+            assert time.monotonic() < deadline, "ticks did not advance"
+            clock_ms, tick = clock_and_tick(c)
+            assert clock_ms == 4 * tick                          # both from the same scan
+            seen.add(tick)
+            time.sleep(0.01)
+
+
+def test_slow_task_runs_on_every_fifth_tick(binary):
+    with h.Runtime(binary, "--no-rt") as rt, h.Client(rt.port) as c:
+        time.sleep(0.2)
+        _, before = clock_and_tick(c)
+        slow = c.read_holding(30)[0]                             # %QW30: runs of the 20 ms task
+        _, after = clock_and_tick(c)
+        assert before // 5 + 1 <= slow <= after // 5 + 1
+        assert after >= 20
+
+
+def test_scan_statistics_are_published_in_the_diagnostic_block(binary):
+    with h.Runtime(binary, "--no-rt") as rt, h.Client(rt.port) as c:
+        t0 = time.monotonic()
+        time.sleep(0.6)
+        d = h.read_diag(c)
+        elapsed = time.monotonic() - t0
+        assert d["state"] == h.STATE_RUNNING and d["base_tick_us"] == 4000
+        assert 0.5 * elapsed / 0.004 <= d["scans"] <= elapsed / 0.004 + 5
+        assert d["scan_min_us"] <= d["scan_mean_us"] <= d["scan_max_us"]
+        assert d["scan_p50_us"] <= d["scan_p99_us"] <= d["scan_max_us"]
+        assert d["wake_min_us"] <= d["wake_mean_us"] <= d["wake_max_us"]
+        assert d["wake_p50_us"] <= d["wake_p99_us"] <= d["wake_max_us"]
+        assert d["scan_max_us"] < 4000 * h.SLOW
+        assert d["overruns"] <= d["scans"]
+
+
+def test_status_line_on_a_terminal_and_as_log_lines(binary):
+    rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--status", "tty", "--duration", "0.8")
+    assert rc == 0, err
+    assert "\r\x1b[K" in err and re.search(r"RUN \| scans \d+ \| scan us last \d+ p99 \d+ max \d+", err)
+    rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--status", "log", "--status-interval", "0.2",
+                         "--duration", "0.9")
+    assert rc == 0, err
+    assert "\r" not in err
+    assert len(re.findall(r"^\S+ plc-runtime: status RUN \| scans \d+", err, re.M)) >= 2
+
+
+def test_realtime_scheduling_is_used_or_reported_once(binary):
+    rc, err = run_to_end(binary, "--port", "0", "--status", "off", "--duration", "0.3")
+    assert rc == 0, err
+    lines = [l for l in err.splitlines() if "SCHED_FIFO" in l or "real-time scheduling not permitted" in l]
+    assert len(lines) == 1, err
+
+
+def test_duration_ends_with_a_summary_line(binary):
+    rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--status", "off", "--duration", "0.5")
+    assert rc == 0, err
+    m = re.search(r"stats scans=(\d+) overruns=(\d+) skipped=(\d+) period_us=4000\.0 .*wake_us_p99=([\d.]+)", err)
+    assert m, err
+    assert 60 <= int(m.group(1)) <= 130
+
+
+# ---------------------------------------------------------------------- faults
+
+def test_a_program_fault_stops_it_with_outputs_safe_while_modbus_answers(binary):
+    with h.Runtime(binary, "--no-rt") as rt, h.Client(rt.port) as c:
+        c.write_register(512, 10)                                # %QW512 -> %IW512 -> %QW1 = 11
+        h.wait_until(lambda: c.read_holding(1) == [11], 2, "%QW1 = 11")
+        assert c.read_coils(0) == [True]
+        c.write_register(1024 + 10, 7)                           # %MW10 = 7: 100 / (7 - 7)
+        h.wait_until(lambda: h.read_diag(c)["state"] == h.STATE_FAULTED, 2, "the fault")
+        d = h.read_diag(c)
+        assert (d["fault_kind"], d["fault_line"], d["fault_col"]) == (1, 42, 27)
+        assert c.read_coils(0, 800) == [False] * 800             # all coils safe
+        assert c.read_holding(0, 125) == [0] * 125               # %QW cleared
+        rt.wait_for(r"error: program fault at tick \d+: integer division by zero \(kind 1\) in MAIN at "
+                    r"fixture_basic\.st:42:27; program stopped, outputs safe, Modbus still serving")
+        _, tick = clock_and_tick(c)
+        time.sleep(0.05)
+        assert clock_and_tick(c)[1] == tick                      # the program no longer runs
+        c.write_coil(400, True)                                  # outputs stay safe
+        time.sleep(0.03)
+        assert c.read_coils(400) == [False]
+        c.write_register(1024 + 300, 99)                         # memory is still memory
+        time.sleep(0.03)
+        assert c.read_holding(1024 + 300) == [99]
+        scans = h.read_diag(c)["scans"]
+        h.wait_until(lambda: h.read_diag(c)["scans"] > scans, 2, "the scan loop to keep running")
+
+
+# --------------------------------------------------------------------- signals
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_stops_with_outputs_safe_and_exit_0(binary, sig):
+    rt = h.Runtime(binary, "--no-rt").start()
+    with h.Client(rt.port) as c:
+        assert c.read_coils(0) == [True]
+    rc = rt.stop(sig)
+    rt.assert_clean_exit(rc)
+    log = rt.log
+    order = [log.index(f"{sig.name} received: stopping"), log.index("outputs safe (all coils and %QW cleared)"),
+             log.index("stats scans="), log.rindex("plc-runtime: stopped")]
+    assert order == sorted(order), log
+
+
+# ----------------------------------------------------------------- I/O layers
+
+def test_io_none_does_not_loop_outputs_back(binary):
+    with h.Runtime(binary, "--no-rt", "--io", "none") as rt, h.Client(rt.port) as c:
+        c.write_register(512, 77)
+        c.write_coil(400, True)
+        time.sleep(0.05)
+        assert c.read_input(512) == [0] and c.read_discrete(400) == [False]
+        assert c.read_holding(1) == [1]                          # %QW1 := %IW512 + 1 with %IW512 = 0
+    assert "I/O layer none" in rt.log
+
+
+# ------------------------------------------------------------- start-up checks
+
+@pytest.mark.parametrize("args, message", [
+    (["--port", "70000"], "--port: '70000' is not a port number"),
+    (["--io", "gpio"], "unknown I/O layer 'gpio'"),
+    (["--bind", "999.1.1.1"], "--bind: '999.1.1.1' is not an IPv4 address"),
+    (["--writable-coils", "700-900"], "outside 0-799"),
+    (["--writable-registers", "12x"], "cannot read '12x'"),
+    (["--allow", "localhost"], "--allow: 'localhost' is not an IPv4 address"),
+    (["--max-clients", "0"], "--max-clients"),
+    (["--frobnicate"], "unknown or incomplete option '--frobnicate'"),
+    (["extra"], "unexpected argument 'extra'"),
+])
+def test_bad_options_are_usage_errors(binary, args, message):
+    rc, err = run_to_end(binary, *args)
+    assert rc == 2 and message in err, err
+    assert "Traceback" not in err
+
+
+def test_help_and_version(binary):
+    result = subprocess.run([str(binary), "--help"], capture_output=True, text=True, timeout=10)
+    assert result.returncode == 0 and "--writable-registers" in result.stdout
+    result = subprocess.run([str(binary), "--version"], capture_output=True, text=True, timeout=10)
+    assert result.returncode == 0 and result.stdout.startswith("plc-runtime ")
+
+
+def test_a_port_in_use_fails_start_up_with_exit_1(binary):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        rc, err = run_to_end(binary, "--no-rt", "--port", str(port))
+    assert rc == 1 and f"cannot listen on 127.0.0.1:{port}" in err, err
+
+
+def test_a_missing_retain_directory_fails_start_up(binary, tmp_path):
+    rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--retain", str(tmp_path / "nope" / "plc.retain"))
+    assert rc == 1 and "does not exist or is not writable" in err, err
+
+
+def test_a_located_variable_of_the_wrong_size_is_refused():
+    rc, err = run_to_end(h.runtime_binary(FIXTURE_BAD_LOCATED=1), "--no-rt", "--port", "0")
+    assert rc == 1
+    assert "located variable CONFIG0.RES0.MAIN.PRESET at %MW30: its type takes 8 bytes, the address 2" in err
+
+
+def test_a_program_for_another_abi_is_refused():
+    rc, err = run_to_end(h.runtime_binary(FIXTURE_ABI_VERSION=99), "--no-rt", "--port", "0")
+    assert rc == 1 and "program built for ABI 99, this runtime speaks ABI 1" in err, err
