@@ -1,0 +1,97 @@
+"""The `plc` command: the integrator's front door.
+
+Exit codes: 0 success, 1 the input has errors (or tests failed), 2 usage or
+environment problems.  User errors never print a Python traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from . import __version__
+from .driver import UserError, compile_c, compile_sources, print_diagnostics
+
+
+def cmd_check(args) -> int:
+    t0 = time.perf_counter()
+    res = compile_sources(args.paths, portability=not args.no_portability, target=args.target, generate=False)
+    print_diagnostics(res, quiet=args.quiet)
+    n_err, n_warn = len(res.diags.errors), len(res.diags.warnings)
+    if not args.quiet:
+        nfiles = len([f for f in res.files if not f.path.startswith("<plc>")])
+        print(f"checked {nfiles} file(s): {n_err} error(s), {n_warn} warning(s) "
+              f"in {time.perf_counter() - t0:.2f}s", file=sys.stderr)
+    return 1 if n_err else 0
+
+
+def cmd_build(args) -> int:
+    res = compile_sources(args.paths, portability=not args.no_portability, target=args.target)
+    print_diagnostics(res, quiet=args.quiet)
+    if not res.ok:
+        print(f"build failed: {len(res.diags.errors)} error(s)", file=sys.stderr)
+        return 1
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    c_file = out / "program.c"
+    c_file.write_text(res.c_text)
+    obj = out / "program.o"
+    compile_c(c_file, obj)
+    if not args.quiet:
+        cfg = res.program.configs[0].name if res.program.configs else "(no CONFIGURATION)"
+        print(f"built {cfg}: {c_file} and {obj}", file=sys.stderr)
+    return 0
+
+
+def add_compile_opts(p: argparse.ArgumentParser) -> None:
+    p.add_argument("paths", nargs="+", metavar="PATH", help=".st files or directories (searched recursively)")
+    p.add_argument("--no-portability", action="store_true", help="do not warn about constructs MATIEC rejects")
+    p.add_argument("--target", choices=["openplc"], help="also check what this deploy target requires")
+    p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="plc", description="atc-plc toolchain: check, build, test and run "
+                                 "IEC 61131-3 Structured Text for the soft-PLC and OpenPLC.")
+    ap.add_argument("--version", action="version", version=f"plc {__version__}")
+    sub = ap.add_subparsers(dest="cmd", metavar="COMMAND")
+    p = sub.add_parser("check", help="report errors and portability warnings", description=
+                       "Parse and check ST files; print diagnostics as file:line:col. Exit 0 when there is no error.")
+    add_compile_opts(p)
+    p.set_defaults(func=cmd_check)
+    p = sub.add_parser("build", help="compile ST to C and an object file", description=
+                       "Compile ST files into DIR/program.c (MATIEC-shaped C against plc_abi.h) and DIR/program.o.")
+    add_compile_opts(p)
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.set_defaults(func=cmd_build)
+    from . import testrunner
+    testrunner.add_parser(sub)
+    sub.add_parser("seq", help="check and compile tool-change sequences (plc seq --help)", add_help=False)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "seq":
+        from .seq.cli import main as seq_main
+        return seq_main(argv[1:])
+    ap = parser()
+    args = ap.parse_args(argv)
+    if not getattr(args, "func", None):
+        ap.print_help()
+        return 2
+    try:
+        return args.func(args)
+    except UserError as e:
+        print(f"plc: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("plc: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,163 @@
+"""The compile pipeline: files -> lexer/parser -> semantic passes -> lint -> C.
+
+Every stage takes the previous stage's output; the AST is the only thing passed
+between them.  `compile_sources` never raises for bad input: problems come back
+as diagnostics.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import ast as A
+from .diagnostics import Diagnostics, SourceSet
+from .parser import parse
+
+PKG = Path(__file__).resolve().parent
+STDLIB = PKG / "stdlib"
+INCLUDE = PKG.parent / "include"
+STANDARD_FBS = STDLIB / "standard_fbs.st"
+TESTLIB = STDLIB / "testing"
+
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2"]
+
+
+class UserError(Exception):
+    """A problem the user must fix (bad path, missing compiler): printed without a traceback."""
+
+
+@dataclass
+class CompileResult:
+    diags: Diagnostics
+    sources: SourceSet
+    files: list[A.SourceFile] = field(default_factory=list)
+    program: object = None
+    c_text: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.diags.has_errors()
+
+
+def collect_files(paths: list[str | os.PathLike]) -> list[Path]:
+    """The .st files named by `paths` (directories are searched recursively, in sorted order)."""
+    out: list[Path] = []
+    for p in paths:
+        path = Path(p)
+        if path.is_dir():
+            out.extend(sorted(q for q in path.rglob("*.st") if q.is_file()))
+        elif path.is_file():
+            out.append(path)
+        else:
+            raise UserError(f"{p}: no such file or directory")
+    seen = set()
+    unique = []
+    for f in out:
+        key = f.resolve()
+        if key not in seen:
+            seen.add(key)
+            unique.append(f)
+    return unique
+
+
+def display_name(path: Path) -> str:
+    try:
+        return os.path.relpath(path)
+    except ValueError:
+        return str(path)
+
+
+def read_source(path: Path) -> str:
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise UserError(f"{path}: {e.strerror}") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+def builtin_files(test_build: bool) -> list[Path]:
+    files = [STANDARD_FBS]
+    if test_build and TESTLIB.is_dir():
+        files.extend(sorted(TESTLIB.glob("*.st")))
+    return files
+
+
+def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False, portability: bool = True,
+                    target: str | None = None, generate: bool = True,
+                    extra_texts: list[tuple[str, str]] | None = None) -> CompileResult:
+    from .codegen import generate as gen_c
+    from .portability import lint
+    from .sema import analyze
+
+    diags = Diagnostics(portability=portability)
+    sources = SourceSet()
+    result = CompileResult(diags, sources)
+    builtins = set()
+    inputs: list[tuple[str, str]] = []
+    for f in builtin_files(test_build):
+        name = f"<plc>/{f.name}" if f.parent == STDLIB else f"<plc>/testing/{f.name}"
+        builtins.add(name)
+        inputs.append((name, read_source(f)))
+    for f in collect_files(paths):
+        inputs.append((display_name(f), read_source(f)))
+    for name, text in extra_texts or []:
+        inputs.append((name, text))
+    for name, text in inputs:
+        sources.add(name, text)
+        result.files.append(parse(text, name, diags))
+    prog = analyze(result.files, diags, builtins, test_build=test_build)
+    result.program = prog
+    lint(result.files, prog, diags, builtins, target=target)
+    if len(prog.configs) > 1:
+        for c in prog.configs[1:]:
+            diags.error(c.decl.pos, "only one CONFIGURATION per build",
+                        f"the first is {prog.configs[0].name} at {prog.configs[0].decl.pos}")
+    if generate and not diags.has_errors():
+        result.c_text = gen_c(prog, test_build=test_build)
+    return result
+
+
+def print_diagnostics(result: CompileResult, stream=None, quiet: bool = False) -> None:
+    stream = stream or sys.stderr
+    for d in result.diags.sorted():
+        if quiet and d.severity != "error":
+            continue
+        print(d.render(result.sources), file=stream)
+
+
+def cc() -> str:
+    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
+        if name and shutil.which(name):
+            return name
+    raise UserError("no C compiler found (install gcc)")
+
+
+def compile_c(c_file: Path, out: Path, *, extra: list[str] | None = None, link: bool = False,
+              sources: list[Path] | None = None, libs: list[str] | None = None) -> None:
+    cmd = [cc(), *CFLAGS, f"-I{INCLUDE}", *(extra or [])]
+    if not link:
+        cmd += ["-c"]
+    cmd += [str(c_file), *[str(s) for s in (sources or [])], "-o", str(out)]
+    if link:
+        cmd += ["-lm", *(libs or [])]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        msg = proc.stderr.strip().splitlines()
+        raise UserError("C compiler failed (this is a bug in plc if the ST checked clean):\n  " +
+                        "\n  ".join(msg[:30]))
+
+
+def content_hash(*parts: str | bytes) -> str:
+    h = hashlib.sha256()
+    for p in parts:
+        h.update(p.encode() if isinstance(p, str) else p)
+        h.update(b"\0")
+    return h.hexdigest()[:16]

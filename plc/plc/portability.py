@@ -1,0 +1,123 @@
+"""Portability lint: names and shapes our compiler accepts but OpenPLC's MATIEC does not.
+
+Most language-level portability warnings are raised where the construct is
+checked (lexer, parser, semantic passes).  This pass looks at names: POU and
+TYPE names that collide with OpenPLC's library, identifiers MATIEC's lexer or
+code generator cannot take, and the CONFIGURATION/RESOURCE names OpenPLC needs.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from . import ast as A
+from .diagnostics import Diagnostics
+from .lexer import KEYWORDS
+from .stdfuncs import STD_FUNCS, conversion
+from .types import ELEMENTARY, GENERIC
+
+DATA = Path(__file__).resolve().parent / "data"
+
+# Identifiers that are keywords to MATIEC's lexer (IL and SFC included) besides ours.
+MATIEC_RESERVED = {
+    "STEP", "END_STEP", "TRANSITION", "END_TRANSITION", "ACTION", "END_ACTION", "INITIAL_STEP", "FROM",
+    "PRIORITY", "INTERVAL", "SINGLE", "EN", "ENO", "R_EDGE", "F_EDGE", "LD", "LDN", "ST", "STN", "S", "R",
+    "JMP", "JMPC", "JMPCN", "CAL", "CALC", "CALCN", "RET", "RETC", "RETCN", "ANDN", "ORN", "XORN",
+    "ADD", "SUB", "MUL", "DIV", "GT", "GE", "EQ", "NE", "LE", "LT", "BY", "DT", "TOD", "D", "T",
+    "READ_ONLY", "READ_WRITE", "NIL", "VAR_CONFIG", "VAR_ACCESS",
+}
+
+
+@lru_cache(maxsize=1)
+def library_identifiers() -> frozenset[str]:
+    """OpenPLC's library identifiers (shared data) plus the names our MATIEC probes found fatal too."""
+    names: set[str] = set()
+    for f in ("openplc_library_identifiers.txt", "openplc_extra_identifiers.txt"):
+        p = DATA / f
+        if p.is_file():
+            for line in p.read_text().splitlines():
+                line = line.strip()
+                if line and not line.startswith("#"):
+                    names.add(line.upper())
+    return frozenset(names)
+
+
+def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str], target: str | None = None) -> None:
+    lib = library_identifiers()
+    for f in files:
+        if f.path in builtin:
+            continue
+        for item in f.items:
+            if isinstance(item, A.Pou):
+                pou_name(item.name, item.text, item.pos, "POU", lib, diags)
+                for d in item.decls():
+                    var_name(d, prog, diags, lib)
+            elif isinstance(item, A.TypeBlock):
+                for td in item.decls:
+                    pou_name(td.name, td.text, td.pos, "TYPE", lib, diags)
+                    if isinstance(td.spec, A.StructSpec):
+                        for m in td.spec.members:
+                            ident_shape(m.name, m.text, m.pos, diags)
+            elif isinstance(item, A.Configuration):
+                config_names(item, diags, target)
+                for b in item.globals:
+                    for d in b.decls:
+                        var_name(d, prog, diags, lib)
+                for r in item.resources:
+                    for b in r.globals:
+                        for d in b.decls:
+                            var_name(d, prog, diags, lib)
+
+
+def ident_shape(name: str, text: str, pos, diags: Diagnostics) -> bool:
+    if "__" in name:
+        diags.portable(pos, f"identifier '{text}' contains '__' (reserved by MATIEC's C output)",
+                       code="portability.identifier")
+        return False
+    if name.endswith("_"):
+        diags.portable(pos, f"identifier '{text}' ends with '_' (rejected by MATIEC)", code="portability.identifier")
+        return False
+    return True
+
+
+def pou_name(name: str, text: str, pos, what: str, lib, diags: Diagnostics) -> None:
+    if not ident_shape(name, text, pos, diags):
+        return
+    if name in lib:
+        diags.portable(pos, f"{what} name '{text}' collides with OpenPLC's library (iec2c -p fails or crashes)",
+                       "rename it, e.g. with a prefix FB_, F_, E_ or ST_", code="portability.library-name")
+
+
+def var_name(d: A.VarDecl, prog, diags: Diagnostics, lib) -> None:
+    name = d.name
+    if not ident_shape(name, d.text, d.pos, diags):
+        return
+    types = set(prog.types) | set(prog.pous) | set(ELEMENTARY)
+    if name in types:
+        same = name == getattr(d.spec, "name", None)
+        diags.portable(d.pos, f"variable '{d.text}' is named like a type"
+                       + (" (differing only in case)" if same else ""),
+                       "choose another name", code="portability.var-type-name")
+    elif name in KEYWORDS or name in MATIEC_RESERVED or name in GENERIC:
+        diags.portable(d.pos, f"variable '{d.text}' is a keyword to MATIEC", code="portability.var-keyword")
+    elif name in STD_FUNCS or conversion(name) is not None:
+        diags.portable(d.pos, f"variable '{d.text}' is named like a standard function",
+                       code="portability.var-std-name")
+    elif name in lib and name in LIBRARY_BLOCKS:
+        diags.portable(d.pos, f"variable '{d.text}' is named like a function block of OpenPLC's library",
+                       code="portability.var-library-block")
+
+
+# Library function blocks whose names also break variables (measured with iec2c -p).
+LIBRARY_BLOCKS = frozenset({"RAMP", "PID", "HYSTERESIS", "INTEGRAL", "DERIVATIVE", "SEMA", "RTC", "BLINK"})
+
+
+def config_names(cfg: A.Configuration, diags: Diagnostics, target: str | None) -> None:
+    if target != "openplc":
+        return
+    if cfg.text != "Config0":
+        diags.portable(cfg.pos, f"OpenPLC needs CONFIGURATION Config0 (found '{cfg.text}')",
+                       code="portability.openplc-names")
+    for r in cfg.resources:
+        if r.text and r.text != "Res0":
+            diags.portable(r.pos, f"OpenPLC needs RESOURCE Res0 (found '{r.text}')", code="portability.openplc-names")

@@ -1,0 +1,331 @@
+"""Signatures of the IEC standard functions, checked as MATIEC checks them.
+
+Each entry knows its parameter names (for formal calls) and how to type-check a
+call; the C generator emits the call from the resolved argument types.
+Conversions (`INT_TO_DINT`, …) are recognised by name in `conversion()`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from . import ast as A
+from . import types as T
+
+CONV_TYPES = {
+    "BOOL": T.BOOL, "SINT": T.SINT, "INT": T.INT, "DINT": T.DINT, "LINT": T.LINT,
+    "USINT": T.USINT, "UINT": T.UINT, "UDINT": T.UDINT, "ULINT": T.ULINT,
+    "BYTE": T.BYTE, "WORD": T.WORD, "DWORD": T.DWORD, "LWORD": T.LWORD,
+    "REAL": T.REAL, "LREAL": T.LREAL, "TIME": T.TIME, "DATE": T.DATE, "TOD": T.TOD,
+    "TIME_OF_DAY": T.TOD, "DT": T.DT, "DATE_AND_TIME": T.DT, "STRING": T.STRING,
+}
+
+# conversions between date/time kinds that make sense
+_TIME_KINDS = ("time", "date", "tod", "dt")
+
+
+def conversion(name: str):
+    """(source type, destination type, generic?) for a conversion function name, else None."""
+    if name.startswith("TO_") and name[3:] in CONV_TYPES:
+        return (None, CONV_TYPES[name[3:]], True)
+    if "_TO_" not in name:
+        return None
+    for i in range(len(name)):
+        if name.startswith("_TO_", i):
+            src, dst = name[:i], name[i + 4:]
+            if src in CONV_TYPES and dst in CONV_TYPES:
+                s, d = CONV_TYPES[src], CONV_TYPES[dst]
+                if s is d:
+                    return (s, d, False)
+                if s.cat in _TIME_KINDS and d.cat in _TIME_KINDS:
+                    ok = {("dt", "tod"), ("dt", "date")}
+                    if (s.cat, d.cat) not in ok:
+                        return None
+                if s.cat == "string" and d.cat in ("date", "tod", "dt"):
+                    return None
+                return (s, d, False)
+    return None
+
+
+@dataclass
+class StdFunc:
+    name: str
+    kind: str                  # see check()
+    params: tuple[str, ...] = ()
+    extensible: bool = False
+
+    # ----------------------------------------------------------------------------------
+    def bind(self, an, c: A.Call) -> list[A.Expr] | None:
+        """Order the arguments of a call positionally; report bad parameter names."""
+        outs = [a for a in c.args if a.output]
+        for a in outs:
+            if a.name != "ENO":
+                an.err(a.pos, f"{self.name} has no output '{a.text or a.name}'")
+        args = [a for a in c.args if not a.output and a.name != "EN"]
+        if any(a.name is not None for a in args):
+            if any(a.name is None for a in args):
+                an.err(c.pos, f"call of {self.name} mixes positional and formal arguments")
+                return None
+            by_name = {a.name: a.value for a in args}
+            names = list(self.params)
+            if self.extensible:
+                n = len(args)
+                names = [p for p in names if not p.startswith("IN")] + [f"IN{i}" for i in range(1, n + 1)]
+                if self.kind == "mux":
+                    names = ["K"] + [f"IN{i}" for i in range(0, n - 1)]
+            out = []
+            for p in names:
+                if p in by_name:
+                    out.append(by_name.pop(p))
+                elif not self.extensible or p in self.params:
+                    an.err(c.pos, f"call of {self.name} is missing '{p}'")
+                    return None
+            for extra in by_name:
+                an.err(c.pos, f"{self.name} has no parameter '{extra}'", f"its parameters are {', '.join(names)}")
+                return None
+            return out
+        return [a.value for a in args]
+
+    def check(self, an, c: A.Call, scope, expected) -> T.Type:
+        for a in c.args:
+            if a.name == "EN" and not a.output:
+                an.expr(a.value, scope, T.BOOL)
+            if a.name == "ENO" and a.output and a.value is not None:
+                tt = an.lvalue(a.value, "write ENO into")
+                an.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
+        args = self.bind(an, c)
+        if args is None:
+            return T.ERROR
+        n = len(args)
+        fixed = len(self.params)
+        if self.extensible:
+            if n < 2 and self.kind != "mux":
+                an.err(c.pos, f"{self.name} needs at least 2 inputs")
+                return T.ERROR
+            if self.kind == "mux" and n < 2:
+                an.err(c.pos, "MUX needs K and at least one input")
+                return T.ERROR
+        elif n != fixed:
+            an.err(c.pos, f"{self.name} takes {fixed} input{'s' if fixed != 1 else ''} ({', '.join(self.params)}), got {n}")
+            for v in args:
+                an.expr(v, scope, None)
+            return T.ERROR
+        c.std_args = args
+        return getattr(self, "k_" + self.kind)(an, c, args, scope, expected)
+
+    # -- helpers -----------------------------------------------------------------------
+    def same(self, an, c, args, scope, expected, generic: str) -> T.Type:
+        """All arguments share one type (literals adapt); return it."""
+        tys = [an.expr(v, scope, None) for v in args]
+        concrete = [T.resolve_base(t) for t in tys if not isinstance(T.resolve_base(t), T.LiteralType)]
+        if any(isinstance(t, T.ErrorType) for t in concrete):
+            return T.ERROR
+        if concrete:
+            target = concrete[0]
+        elif expected is not None and not isinstance(T.resolve_base(expected), T.LiteralType):
+            target = T.resolve_base(expected)
+        else:
+            lits = [T.resolve_base(t) for t in tys]
+            target = T.LREAL if any(getattr(t, "cat", "") == "real" for t in lits) else T.DINT
+        for v, t in zip(args, tys):
+            if isinstance(T.resolve_base(t), T.LiteralType):
+                an.fix_literal(v, target)
+                if isinstance(v.ty, T.LiteralType):
+                    an.err(v.pos, f"{self.name}: this literal does not fit {target}")
+                    return T.ERROR
+            elif not T.same_type(t, target):
+                an.err(v.pos, f"{self.name}: all inputs must have the same type ({target} and {t})",
+                       an.conv_hint(t, target))
+                return T.ERROR
+        if not T.is_generic_ok(generic, target):
+            an.err(c.pos, f"{self.name} needs {generic} inputs, not {target}")
+            return T.ERROR
+        return target
+
+    def one(self, an, v, scope, want: T.Type) -> None:
+        t = an.expr(v, scope, want)
+        an.assign_compat(v, t, want, v.pos, f"{self.name} input")
+
+    # -- kinds -------------------------------------------------------------------------
+    def k_num1(self, an, c, args, scope, expected):
+        return self.same(an, c, args, scope, expected, "ANY_NUM")
+
+    def k_real1(self, an, c, args, scope, expected):
+        return self.same(an, c, args, scope, expected, "ANY_REAL")
+
+    def k_arith(self, an, c, args, scope, expected):
+        tys = [T.resolve_base(an.expr(v, scope, None)) for v in args]
+        if any(isinstance(t, T.Elementary) and t.cat == "time" for t in tys):
+            c.time_arith = True
+            for v, t in zip(args[1:], tys[1:]):
+                if isinstance(t, T.LiteralType):
+                    an.fix_literal(v, T.DINT if t.cat == "int" else T.LREAL)
+            return T.TIME
+        return self.same(an, c, args, scope, expected, "ANY_NUM")
+
+    def k_expt(self, an, c, args, scope, expected):
+        b = an.expr(args[0], scope, expected if T.is_elem(expected or T.ERROR, "real") else T.LREAL)
+        e = an.expr(args[1], scope, None)
+        bb = T.resolve_base(b)
+        if isinstance(T.resolve_base(e), T.LiteralType):
+            an.fix_literal(args[1], T.LREAL if T.resolve_base(e).cat == "real" else T.DINT)
+        if not T.is_elem(bb, "real"):
+            if not isinstance(bb, T.ErrorType):
+                an.err(args[0].pos, f"EXPT needs a REAL or LREAL base, not {b}")
+            return T.ERROR
+        if not T.is_elem(args[1].ty or T.ERROR, "int", "uint", "real"):
+            an.err(args[1].pos, "EXPT exponent must be a number")
+        return bb
+
+    def k_move(self, an, c, args, scope, expected):
+        t = an.expr(args[0], scope, expected)
+        return t
+
+    def k_minmax(self, an, c, args, scope, expected):
+        t = self.same(an, c, args, scope, expected, "ANY_ELEMENTARY")
+        if isinstance(t, (T.StructType, T.ArrayType)):
+            an.err(c.pos, f"{self.name} needs elementary inputs")
+            return T.ERROR
+        return t
+
+    def k_limit(self, an, c, args, scope, expected):
+        return self.same(an, c, args, scope, expected, "ANY_ELEMENTARY")
+
+    def k_sel(self, an, c, args, scope, expected):
+        self.one(an, args[0], scope, T.BOOL)
+        return self.same(an, c, args[1:], scope, expected, "ANY")
+
+    def k_mux(self, an, c, args, scope, expected):
+        kt = an.expr(args[0], scope, T.DINT)
+        if isinstance(T.resolve_base(kt), T.LiteralType):
+            an.fix_literal(args[0], T.DINT)
+        elif not T.is_elem(kt, "int", "uint"):
+            an.err(args[0].pos, f"MUX selector K must be an integer, not {kt}")
+        return self.same(an, c, args[1:], scope, expected, "ANY")
+
+    def k_shift(self, an, c, args, scope, expected):
+        t = an.expr(args[0], scope, expected)
+        b = T.resolve_base(t)
+        if isinstance(b, T.LiteralType):
+            an.err(args[0].pos, f"{self.name} needs a typed bit string; write WORD#16#...")
+            return T.ERROR
+        if not (isinstance(b, T.Elementary) and b.cat == "bit"):
+            if not isinstance(b, T.ErrorType):
+                an.err(args[0].pos, f"{self.name} needs a bit string (BYTE, WORD, DWORD, LWORD), not {t}")
+            return T.ERROR
+        nt = an.expr(args[1], scope, T.DINT)
+        if isinstance(T.resolve_base(nt), T.LiteralType):
+            an.fix_literal(args[1], T.DINT)
+        elif not T.is_elem(nt, "int", "uint"):
+            an.err(args[1].pos, f"{self.name} count N must be an integer, not {nt}")
+        return b
+
+    def k_logic(self, an, c, args, scope, expected):
+        return self.same(an, c, args, scope, expected, "ANY_BIT")
+
+    def k_not(self, an, c, args, scope, expected):
+        return self.same(an, c, args, scope, expected, "ANY_BIT")
+
+    def k_compare(self, an, c, args, scope, expected):
+        self.same(an, c, args, scope, None, "ANY_ELEMENTARY")
+        return T.BOOL
+
+    def k_len(self, an, c, args, scope, expected):
+        self.one(an, args[0], scope, T.STRING)
+        return T.INT
+
+    def k_strint(self, an, c, args, scope, expected):
+        """LEFT(IN, L), RIGHT(IN, L)."""
+        self.one(an, args[0], scope, T.STRING)
+        self.int_arg(an, args[1], scope)
+        return T.STRING
+
+    def int_arg(self, an, v, scope):
+        t = an.expr(v, scope, T.INT)
+        if isinstance(T.resolve_base(t), T.LiteralType):
+            an.fix_literal(v, T.INT)
+        elif not T.is_elem(t, "int", "uint"):
+            an.err(v.pos, f"{self.name}: expected an integer, not {t}")
+
+    def k_mid(self, an, c, args, scope, expected):
+        self.one(an, args[0], scope, T.STRING)
+        self.int_arg(an, args[1], scope)
+        self.int_arg(an, args[2], scope)
+        return T.STRING
+
+    def k_concat(self, an, c, args, scope, expected):
+        for v in args:
+            self.one(an, v, scope, T.STRING)
+        return T.STRING
+
+    def k_insert(self, an, c, args, scope, expected):
+        self.one(an, args[0], scope, T.STRING)
+        self.one(an, args[1], scope, T.STRING)
+        self.int_arg(an, args[2], scope)
+        return T.STRING
+
+    def k_delete(self, an, c, args, scope, expected):
+        self.one(an, args[0], scope, T.STRING)
+        self.int_arg(an, args[1], scope)
+        self.int_arg(an, args[2], scope)
+        return T.STRING
+
+    def k_replace(self, an, c, args, scope, expected):
+        self.one(an, args[0], scope, T.STRING)
+        self.one(an, args[1], scope, T.STRING)
+        self.int_arg(an, args[2], scope)
+        self.int_arg(an, args[3], scope)
+        return T.STRING
+
+    def k_find(self, an, c, args, scope, expected):
+        self.one(an, args[0], scope, T.STRING)
+        self.one(an, args[1], scope, T.STRING)
+        return T.INT
+
+    def k_trunc(self, an, c, args, scope, expected):
+        t = an.expr(args[0], scope, T.LREAL)
+        if isinstance(T.resolve_base(t), T.LiteralType):
+            an.fix_literal(args[0], T.LREAL)
+        elif not T.is_elem(t, "real"):
+            an.err(args[0].pos, f"TRUNC needs a REAL or LREAL, not {t}")
+        return T.DINT
+
+
+def _table() -> dict[str, StdFunc]:
+    t: dict[str, StdFunc] = {}
+    for n in ("ABS",):
+        t[n] = StdFunc(n, "num1", ("IN",))
+    for n in ("SQRT", "LN", "LOG", "EXP", "SIN", "COS", "TAN", "ASIN", "ACOS", "ATAN"):
+        t[n] = StdFunc(n, "real1", ("IN",))
+    t["ADD"] = StdFunc("ADD", "arith", ("IN1", "IN2"), extensible=True)
+    t["MUL"] = StdFunc("MUL", "arith", ("IN1", "IN2"), extensible=True)
+    t["SUB"] = StdFunc("SUB", "arith", ("IN1", "IN2"))
+    t["DIV"] = StdFunc("DIV", "arith", ("IN1", "IN2"))
+    t["MOD"] = StdFunc("MOD", "arith", ("IN1", "IN2"))
+    t["EXPT"] = StdFunc("EXPT", "expt", ("IN1", "IN2"))
+    t["MOVE"] = StdFunc("MOVE", "move", ("IN",))
+    t["MIN"] = StdFunc("MIN", "minmax", ("IN1", "IN2"), extensible=True)
+    t["MAX"] = StdFunc("MAX", "minmax", ("IN1", "IN2"), extensible=True)
+    t["LIMIT"] = StdFunc("LIMIT", "limit", ("MN", "IN", "MX"))
+    t["SEL"] = StdFunc("SEL", "sel", ("G", "IN0", "IN1"))
+    t["MUX"] = StdFunc("MUX", "mux", ("K", "IN0", "IN1"), extensible=True)
+    for n in ("SHL", "SHR", "ROL", "ROR"):
+        t[n] = StdFunc(n, "shift", ("IN", "N"))
+    for n in ("AND", "OR", "XOR"):
+        t[n] = StdFunc(n, "logic", ("IN1", "IN2"), extensible=True)
+    t["NOT"] = StdFunc("NOT", "not", ("IN",))
+    for n in ("GT", "GE", "EQ", "LE", "LT", "NE"):
+        t[n] = StdFunc(n, "compare", ("IN1", "IN2"))
+    t["LEN"] = StdFunc("LEN", "len", ("IN",))
+    t["LEFT"] = StdFunc("LEFT", "strint", ("IN", "L"))
+    t["RIGHT"] = StdFunc("RIGHT", "strint", ("IN", "L"))
+    t["MID"] = StdFunc("MID", "mid", ("IN", "L", "P"))
+    t["CONCAT"] = StdFunc("CONCAT", "concat", ("IN1", "IN2"), extensible=True)
+    t["INSERT"] = StdFunc("INSERT", "insert", ("IN1", "IN2", "P"))
+    t["DELETE"] = StdFunc("DELETE", "delete", ("IN", "L", "P"))
+    t["REPLACE"] = StdFunc("REPLACE", "replace", ("IN1", "IN2", "L", "P"))
+    t["FIND"] = StdFunc("FIND", "find", ("IN1", "IN2"))
+    t["TRUNC"] = StdFunc("TRUNC", "trunc", ("IN",))
+    return t
+
+
+STD_FUNCS = _table()

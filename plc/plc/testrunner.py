@@ -1,0 +1,257 @@
+"""`plc test`: scan-cycle unit tests written in ST.
+
+A test is a FUNCTION_BLOCK whose name starts with TEST_ and that has a
+VAR_IN_OUT of type ST_TestContext.  `plc test` compiles st_src/ and the test
+files once into one native binary (the generated C plus stdlib/test_main.c),
+runs each test on a fresh instance with a simulated clock, and reports.
+"""
+from __future__ import annotations
+
+import fnmatch
+import os
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .driver import STDLIB, UserError, cc, compile_sources, content_hash, print_diagnostics, INCLUDE
+
+DEFAULT_TIMEOUT_S = 20
+
+
+@dataclass
+class TestResult:
+    name: str
+    file: str
+    line: int
+    status: str = "NOTRUN"          # PASS FAIL BUDGET HANG FAULT
+    scans: int = 0
+    clock_ns: int = 0
+    asserts: int = 0
+    failures: int = 0
+    messages: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def passed(self) -> bool:
+        return self.status == "PASS"
+
+
+def project_root(start: Path | None = None) -> Path | None:
+    p = (start or Path.cwd()).resolve()
+    for q in (p, *p.parents):
+        if (q / "st_src").is_dir() and (q / "iec_tests").is_dir():
+            return q
+    return None
+
+
+def fmt_time(ns: int) -> str:
+    if ns % 1_000_000_000 == 0:
+        return f"{ns // 1_000_000_000}s"
+    if ns % 1_000_000 == 0:
+        return f"{ns // 1_000_000}ms"
+    return f"{ns / 1e6:.3f}ms"
+
+
+def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, optimize: str = "-O1"):
+    """Compile the sources and tests into one runner binary (cached by content)."""
+    res = compile_sources([*src, *paths], test_build=True)
+    print_diagnostics(res, quiet=True)   # errors only: warnings are `plc check`'s business
+    if not res.ok:
+        raise TestBuildError(len(res.diags.errors))
+    runner_c = STDLIB / "test_main.c"
+    key = content_hash(res.c_text, runner_c.read_bytes(), (INCLUDE / "plc_rt.h").read_bytes(),
+                       (INCLUDE / "plc_abi.h").read_bytes(), optimize)
+    out = build_dir / key
+    exe = out / "tests"
+    if not exe.exists():
+        out.mkdir(parents=True, exist_ok=True)
+        c_file = out / "tests.c"
+        c_file.write_text(res.c_text)
+        cmd = [cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", str(c_file),
+               str(runner_c), "-o", str(exe) + ".tmp", "-lm"]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise UserError("C compiler failed on the test build (a bug in plc):\n  " +
+                            "\n  ".join(proc.stderr.strip().splitlines()[:30]))
+        os.replace(str(exe) + ".tmp", exe)
+    return res, exe
+
+
+class TestBuildError(Exception):
+    pass
+
+
+def collect_tests(res) -> list[TestResult]:
+    """The TEST_ function blocks in generation order (the order of plc_tests[])."""
+    out = []
+    ctx_t = res.program.types.get("ST_TESTCONTEXT")
+    for pt in res.program.pous.values():
+        if pt.kind != "FUNCTION_BLOCK" or not pt.name.startswith("TEST_"):
+            continue
+        if not any(v.section == "VAR_IN_OUT" and v.type is ctx_t for v in pt.scope.vars.values()):
+            continue
+        out.append(TestResult(pt.pou.text, pt.pou.pos.file, pt.pou.pos.line))
+    return out
+
+
+def unescape(s: str) -> str:
+    return s.replace("\\t", "\t").replace("\\n", "\n").replace("\\r", "\r").replace("\\\\", "\\")
+
+
+def run_binary(exe: Path, indices: list[int], tests: list[TestResult], sites, timeout: int, stop_first: bool,
+               on_result) -> None:
+    cmd = [str(exe), "--timeout", str(timeout), *map(str, indices)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, errors="replace")
+    current: TestResult | None = None
+    t0 = time.perf_counter()
+    try:
+        for line in proc.stdout:
+            line = line.rstrip("\n")
+            if line.startswith("BEGIN "):
+                current = tests[int(line.split()[1])]
+                t0 = time.perf_counter()
+            elif line.startswith("ASSERT ") and current is not None:
+                head, _, rest = line.partition(" ")[2].partition(" ")
+                site = int(head)
+                parts = rest.split("\t")
+                msg, exp, act = (unescape(p) for p in (parts + ["", "", ""])[:3])
+                where = f"{sites[site].pos}" if 0 <= site < len(sites) else current.file
+                detail = f"expected {exp}, actual {act}" if (exp or act) else "failed"
+                current.messages.append(f"{where}: {msg}: {detail}")
+            elif line.startswith("FAULT ") and current is not None:
+                kind_s, _, rest = line[6:].partition(" ")
+                f, ln, col, pou = (rest.split("\t") + ["?", "0", "0", "?"])[:4]
+                kind = {"1": "integer division by zero", "2": "array index out of bounds",
+                        "3": "subrange violation"}.get(kind_s, f"fault {kind_s}")
+                current.messages.append(f"{f}:{ln}:{col}: runtime fault in {pou}: {kind}")
+            elif line.startswith("END ") and current is not None:
+                _, _idx, status, scans, clock, asserts, failures = line.split()[:7]
+                current.status = status
+                current.scans, current.clock_ns = int(scans), int(clock)
+                current.asserts, current.failures = int(asserts), int(failures)
+                current.seconds = time.perf_counter() - t0
+                on_result(current)
+                if stop_first and not current.passed:
+                    proc.kill()
+                    break
+                current = None
+    finally:
+        proc.wait()
+    if proc.returncode not in (0, -9) and current is not None:
+        current.status = "FAULT"
+        current.messages.append(f"the test process died (signal {-proc.returncode})"
+                                if proc.returncode < 0 else f"the test process exited with {proc.returncode}")
+        on_result(current)
+
+
+def explain(r: TestResult) -> list[str]:
+    out = list(r.messages)
+    if r.status == "BUDGET":
+        out.append(f"{r.file}:{r.line}: over budget: still running after {r.scans} scans "
+                   f"({fmt_time(r.clock_ns)} simulated) without setting tc.Done")
+    elif r.status == "HANG":
+        out.append(f"{r.file}:{r.line}: hung inside a scan (no return within the wall-clock timeout; "
+                   f"an endless loop?) at scan {r.scans}")
+    elif r.status == "FAIL" and not r.messages:
+        out.append(f"{r.file}:{r.line}: {r.failures} assertion(s) failed")
+    if r.status == "FAIL" and r.failures > len(r.messages):
+        out.append(f"... {r.failures - len(r.messages)} more failed assertion(s)")
+    return out
+
+
+def write_junit(path: str, results: list[TestResult], total_s: float) -> None:
+    suites = ET.Element("testsuites", name="plc test", tests=str(len(results)),
+                        failures=str(sum(not r.passed for r in results)), time=f"{total_s:.3f}")
+    by_file: dict[str, list[TestResult]] = {}
+    for r in results:
+        by_file.setdefault(r.file, []).append(r)
+    for f, rs in by_file.items():
+        suite = ET.SubElement(suites, "testsuite", name=f, tests=str(len(rs)),
+                              failures=str(sum(not r.passed for r in rs)),
+                              time=f"{sum(r.seconds for r in rs):.3f}")
+        for r in rs:
+            case = ET.SubElement(suite, "testcase", classname=f, name=r.name, time=f"{r.seconds:.3f}",
+                                 file=f, line=str(r.line))
+            if not r.passed:
+                fail = ET.SubElement(case, "failure", type=r.status,
+                                     message=(explain(r) or [r.status])[0])
+                fail.text = "\n".join(explain(r))
+            ET.SubElement(case, "system-out").text = f"{r.scans} scans, {fmt_time(r.clock_ns)} simulated"
+    ET.ElementTree(suites).write(path, encoding="utf-8", xml_declaration=True)
+
+
+def cmd_test(args) -> int:
+    root = project_root()
+    paths = args.paths or ([str(root / "iec_tests")] if root else [])
+    if not paths:
+        raise UserError("no test paths given and no project (st_src/ and iec_tests/) found from here")
+    src = args.src if args.src is not None else ([str(root / "st_src")] if root else [])
+    build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
+    t0 = time.perf_counter()
+    try:
+        res, exe = build_tests(paths, src, build_dir, args.quiet)
+    except TestBuildError as e:
+        print(f"plc test: the tests do not compile ({e.args[0]} error(s))", file=sys.stderr)
+        print("0 passed, 1 failed")
+        return 1
+    t_build = time.perf_counter() - t0
+    tests = collect_tests(res)
+    selected = list(range(len(tests)))
+    if args.k:
+        pat = args.k.lower()
+        selected = [i for i in selected if pat in tests[i].name.lower() or fnmatch.fnmatch(tests[i].name.lower(), pat)]
+    if args.verbose:
+        print(f"built {len(tests)} test(s) in {t_build:.2f}s -> {exe}")
+    sites = res.program.sites
+
+    def on_result(r: TestResult) -> None:
+        tag = "PASS" if r.passed else "FAIL"
+        extra = f" [{r.status.lower()}]" if r.status not in ("PASS", "FAIL") else ""
+        info = f"{r.scans} scans, {fmt_time(r.clock_ns)} simulated"
+        if args.verbose:
+            info += f", {r.asserts} asserts, {r.seconds * 1000:.1f} ms"
+        if not r.passed or not args.quiet:
+            print(f"{tag}  {r.name}{extra}  ({info})")
+        if not r.passed:
+            for m in explain(r):
+                print(f"      {m}")
+        sys.stdout.flush()
+
+    t1 = time.perf_counter()
+    if selected:
+        run_binary(exe, selected, tests, sites, args.timeout, args.x, on_result)
+    ran = [tests[i] for i in selected if tests[i].status != "NOTRUN"]
+    skipped = len(selected) - len(ran)
+    passed = sum(r.passed for r in ran)
+    failed = len(ran) - passed
+    if args.junit_xml:
+        write_junit(args.junit_xml, ran, time.perf_counter() - t1)
+    line = f"{passed} passed, {failed} failed"
+    if skipped:
+        line += f", {skipped} skipped"
+    print(line)
+    if not selected:
+        print("plc test: no test matched", file=sys.stderr)
+        return 1 if args.k else 0
+    return 0 if failed == 0 and skipped == 0 else 1
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("test", help="run the scan-cycle tests written in ST", description=
+                       "Compile st_src/ and the tests into one binary and run every TEST_ function block on a fresh "
+                       "instance with a simulated clock. Exit 0 only when all pass.")
+    p.add_argument("paths", nargs="*", metavar="PATH", help="test files or directories (default: iec_tests/)")
+    p.add_argument("-k", metavar="PATTERN", help="run only tests whose name contains PATTERN (or matches the glob)")
+    p.add_argument("-x", action="store_true", help="stop at the first failing test")
+    p.add_argument("-v", "--verbose", action="store_true", help="more detail per test")
+    p.add_argument("-q", "--quiet", action="store_true", help="print failing tests and the summary only")
+    p.add_argument("--junit-xml", metavar="FILE", help="also write a JUnit XML report")
+    p.add_argument("--src", action="append", metavar="DIR",
+                   help="library sources to compile with the tests (default: the project's st_src/)")
+    p.add_argument("--timeout", type=int, default=DEFAULT_TIMEOUT_S, metavar="S",
+                   help=f"wall-clock limit per test in seconds (default {DEFAULT_TIMEOUT_S})")
+    p.add_argument("--build-dir", metavar="DIR", help="where to cache the test binary (default: build/plc-test)")
+    p.set_defaults(func=cmd_test)
