@@ -1,0 +1,164 @@
+"""Toolchain benchmarks (issues 2 and 3), printed as a table.
+
+- plc check of a generated 2,000-line ST file (target <= 0.5 s)
+- compiling st_src/ + iec_tests/ into the test binary, cold (target <= 10 s)
+- 200 tests x 10,000 scans each through plc test's runner (target <= 5 s wall)
+"""
+from __future__ import annotations
+
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "plc"))
+
+from plc.driver import compile_sources  # noqa: E402
+from plc.testrunner import build_tests, collect_tests  # noqa: E402
+
+
+def big_source(lines: int) -> str:
+    """Realistic ST: FBs with timers, CASE state machines, loops and arithmetic, until `lines` lines."""
+    out = ["TYPE", "    E_BenchState : (Idle, Moving, Settling, Faulted);", "END_TYPE", ""]
+    k = 0
+    while len(out) < lines:
+        k += 1
+        out += f"""FUNCTION_BLOCK FB_Bench{k}
+VAR_INPUT
+    start : BOOL;           (* start a move *)
+    target : INT;           (* target position *)
+END_VAR
+VAR_OUTPUT
+    done : BOOL;            (* move finished *)
+    position : INT;         (* current position *)
+END_VAR
+VAR
+    state : E_BenchState;
+    settle : TON;
+    history : ARRAY[1..8] OF INT := [8(0)];
+    i : INT;
+    total : DINT;
+END_VAR
+CASE state OF
+    Idle:
+        done := FALSE;
+        IF start THEN
+            state := Moving;
+        END_IF;
+    Moving:
+        IF position < target THEN
+            position := position + 1;
+        ELSIF position > target THEN
+            position := position - 1;
+        ELSE
+            state := Settling;
+        END_IF;
+    Settling:
+        settle(IN := TRUE, PT := T#20ms);
+        IF settle.Q THEN
+            settle(IN := FALSE);
+            done := TRUE;
+            state := Idle;
+        END_IF;
+ELSE
+    state := Faulted;
+END_CASE;
+total := 0;
+FOR i := 1 TO 8 DO
+    total := total + INT_TO_DINT(history[i]);
+END_FOR;
+history[(position MOD 8) + 1] := position;
+END_FUNCTION_BLOCK
+
+""".splitlines()
+    return "\n".join(out) + "\n"
+
+
+def bench_check(tmp: Path) -> tuple[float, int]:
+    src = tmp / "big.st"
+    text = big_source(2000)
+    src.write_text(text)
+    n = text.count("\n")
+    times = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        res = compile_sources([src], generate=False)
+        times.append(time.perf_counter() - t0)
+        assert not res.diags.has_errors(), [d.message for d in res.diags.errors][:3]
+    return statistics.median(times), n
+
+
+def bench_compile_project(tmp: Path) -> float:
+    t0 = time.perf_counter()
+    build_tests([str(ROOT / "iec_tests")], [str(ROOT / "st_src")], tmp / "cold", quiet=True)
+    return time.perf_counter() - t0
+
+
+def bench_scans(tmp: Path) -> tuple[float, float, int]:
+    tests = []
+    for k in range(200):
+        tests.append(f"""FUNCTION_BLOCK TEST_Bench{k}
+VAR_IN_OUT
+    tc : ST_TestContext;
+END_VAR
+VAR
+    axis : FB_Bench1;
+    pulse : TON;
+    count : DINT;
+END_VAR
+IF tc.Scan = 1 THEN
+    tc.Budget := 20000;
+END_IF;
+axis(start := TRUE, target := {k % 50 + 10});
+pulse(IN := NOT pulse.Q, PT := T#40ms);
+IF pulse.Q THEN
+    count := count + 1;
+END_IF;
+tc.Ok := AssertTrue(tc, axis.position <= {k % 50 + 10}, 'never overshoots');
+tc.Done := tc.Scan >= 10000;
+END_FUNCTION_BLOCK
+""")
+    lib = tmp / "lib"
+    lib.mkdir()
+    (lib / "bench_lib.st").write_text(big_source(60))
+    tfile = tmp / "bench_tests.st"
+    tfile.write_text("\n".join(tests))
+    t0 = time.perf_counter()
+    res, exe = build_tests([str(tfile)], [str(lib)], tmp / "scan", quiet=True, optimize="-O1")
+    build_s = time.perf_counter() - t0
+    n = len(collect_tests(res))
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(exe)], capture_output=True, text=True)
+    run_s = time.perf_counter() - t0
+    ends = [line for line in proc.stdout.splitlines() if line.startswith("END ")]
+    bad = [e for e in ends if " PASS " not in e or " 10000 " not in e]
+    assert len(ends) == n == 200 and not bad, (len(ends), bad[:3])
+    return run_s, build_s, n
+
+
+def main() -> int:
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        check_s, lines = bench_check(tmp)
+        rows.append(("plc check, generated ST file", f"{lines} lines", f"{check_s:.3f} s", "<= 0.5 s", check_s <= 0.5))
+        comp_s = bench_compile_project(tmp)
+        rows.append(("compile st_src/ + iec_tests/ (cold)", "ST -> C -> gcc -O1", f"{comp_s:.2f} s", "<= 10 s",
+                     comp_s <= 10))
+        run_s, build_s, n = bench_scans(tmp)
+        rows.append(("plc test runner", f"{n} tests x 10,000 scans", f"{run_s:.2f} s", "<= 5 s", run_s <= 5))
+        rows.append(("  (its build)", "ST -> C -> gcc -O1", f"{build_s:.2f} s", "", True))
+    w = [max(len(str(r[i])) for r in rows + [("benchmark", "size", "measured", "target", "")]) for i in range(4)]
+    head = ("benchmark", "size", "measured", "target")
+    print("  ".join(h.ljust(w[i]) for i, h in enumerate(head)) + "  ok")
+    print("  ".join("-" * w[i] for i in range(4)) + "  --")
+    for r in rows:
+        print("  ".join(str(r[i]).ljust(w[i]) for i in range(4)) + ("  yes" if r[4] else "  NO"))
+    return 0 if all(r[4] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
