@@ -30,6 +30,7 @@ Configuration file (every key optional; paths relative to the file's directory):
     realtime = true                 # ask for SCHED_FIFO
     rt_priority = 50
     status_interval_s = 10          # status log line period when not on a terminal
+    watchdog_ms = 1000              # longest run() call before outputs are forced safe (0 = off)
 """
 
 from __future__ import annotations
@@ -178,13 +179,14 @@ class RunConfig:
     realtime: bool = True
     rt_priority: int = 50
     status_interval_s: float = 10.0
+    watchdog_ms: int = 1000
 
 
 _KEYS = {
     "modbus": {"bind", "port", "max_clients", "allow", "writable_coils", "writable_registers"},
     "io": {"layer"},
     "retain": {"file", "interval_ms", "registers"},
-    "scan": {"realtime", "rt_priority", "status_interval_s"},
+    "scan": {"realtime", "rt_priority", "status_interval_s", "watchdog_ms"},
 }
 
 
@@ -308,6 +310,8 @@ def load_config(path: Path) -> RunConfig:
         if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
             raise ConfigError(f"{where('scan', 'status_interval_s')}: expected a number of seconds >= 0.1")
         cfg.status_interval_s = float(value)
+    if "watchdog_ms" in scan:
+        cfg.watchdog_ms = _check_int(where("scan", "watchdog_ms"), scan["watchdog_ms"], 0, 3600000)
     return cfg
 
 
@@ -317,7 +321,7 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
     argv = [str(binary), "--bind", cfg.bind, "--port", str(cfg.port), "--io", cfg.io,
             "--max-clients", str(cfg.max_clients), "--retain", str(retain),
             "--retain-interval", str(cfg.retain_interval_ms),
-            "--status-interval", str(cfg.status_interval_s)]
+            "--status-interval", str(cfg.status_interval_s), "--watchdog", str(cfg.watchdog_ms)]
     if cfg.allow:
         argv += ["--allow", ",".join(cfg.allow)]
     if cfg.writable_coils is not None:

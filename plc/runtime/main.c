@@ -30,6 +30,7 @@
 #define DEFAULT_RETAIN_INTERVAL_MS 200
 #define DEFAULT_RT_PRIORITY 50
 #define FALLBACK_TICK_NS 10000000u
+#define DEFAULT_WATCHDOG_MS 1000
 
 static void usage(FILE *f)
 {
@@ -53,12 +54,13 @@ static void usage(FILE *f)
 "  --status auto|tty|log|off  live status line (auto: on a terminal, else log lines)\n"
 "  --status-interval S      seconds between status log lines when not on a terminal (default 10)\n"
 "  --duration S             stop after S seconds (benchmarks; default: run until SIGINT/SIGTERM)\n"
+"  --watchdog MS            longest run() call before outputs are forced safe (default %d, 0 = off)\n"
 "  --version, --help\n"
 "\n"
 "Diagnostics are in input registers %u-%u (see runtime.h).  Exit status: 0 after\n"
 "SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error.\n",
             DEFAULT_PORT, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_RT_PRIORITY,
-            DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
+            DEFAULT_WATCHDOG_MS, DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
 }
 
 static int usage_error(const char *fmt, const char *arg)
@@ -138,7 +140,7 @@ static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char
 
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
        OPT_MAX_CLIENTS, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
-       OPT_STATUS_INTERVAL, OPT_DURATION, OPT_VERSION, OPT_HELP };
+       OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_VERSION, OPT_HELP };
 
 static int parse_options(int argc, char **argv, rt_options_t *o)
 {
@@ -158,6 +160,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "status", required_argument, NULL, OPT_STATUS },
         { "status-interval", required_argument, NULL, OPT_STATUS_INTERVAL },
         { "duration", required_argument, NULL, OPT_DURATION },
+        { "watchdog", required_argument, NULL, OPT_WATCHDOG },
         { "version", no_argument, NULL, OPT_VERSION },
         { "help", no_argument, NULL, OPT_HELP },
         { NULL, 0, NULL, 0 },
@@ -176,6 +179,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     o->rt_priority = DEFAULT_RT_PRIORITY;
     o->status = STATUS_AUTO;
     o->status_interval_s = 10;
+    o->watchdog_ms = DEFAULT_WATCHDOG_MS;
     addr_set_parse(&o->writable_coils, DEFAULT_WRITABLE_COILS, MAP_BITS, err, sizeof err);
     addr_set_parse(&o->writable_registers, DEFAULT_WRITABLE_REGISTERS, MAP_HOLDING, err, sizeof err);
 
@@ -256,6 +260,11 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             if (!parse_double(optarg, 0.0, &o->duration_s))
                 return usage_error("--duration: '%s' is not a number of seconds", optarg);
             break;
+        case OPT_WATCHDOG:
+            if (!parse_long(optarg, 0, 3600000, &v))
+                return usage_error("--watchdog: '%s' is not a number of milliseconds", optarg);
+            o->watchdog_ms = (int)v;
+            break;
         case OPT_VERSION:
             printf(RT_NAME " " RT_VERSION " (ABI %u)\n", PLC_ABI_VERSION);
             exit(0);
@@ -312,6 +321,8 @@ int main(int argc, char **argv)
         return rc;
     rt.prog = &plc_program;
     pthread_mutex_init(&rt.lock, NULL);
+    pthread_mutex_init(&rt.io_lock, NULL);
+    rt.scan_thread = pthread_self();
 
     /* Every thread created from here on inherits the blocked signals. */
     sigemptyset(&block);
@@ -350,8 +361,14 @@ int main(int argc, char **argv)
     if (modbus_server_start(&rt, &rt.server) != 0)
         goto out_retain;
 
+    if (watchdog_start(&rt, &rt.watchdog) != 0) {
+        log_msg(rt.log, LOG_ERROR, "cannot start the watchdog thread");
+        modbus_server_stop(rt.server);
+        goto out_retain;
+    }
     scan_setup_realtime(&rt);
     status = scan_run(&rt);
+    watchdog_stop(rt.watchdog);
 
     /* Outputs are safe now; flush retained data before anything else. */
     retain_close(&rt);
@@ -366,5 +383,6 @@ out_log:
         log_msg(rt.log, LOG_INFO, "stopped");
     log_close(rt.log);
     pthread_mutex_destroy(&rt.lock);
+    pthread_mutex_destroy(&rt.io_lock);
     return status;
 }

@@ -445,8 +445,9 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
     for (int i = 0; i < opt->max_clients; i++)
         srv->clients[i].fd = -1;
 
-    if (inet_pton(AF_INET, opt->bind, &ia) != 1) {
-        log_msg(rt->log, LOG_ERROR, "modbus: bind address '%s' is not an IPv4 address", opt->bind);
+    /* libmodbus listens on every interface for any address starting with '0'. */
+    if (inet_pton(AF_INET, opt->bind, &ia) != 1 || (opt->bind[0] == '0' && ia.s_addr != 0)) {
+        log_msg(rt->log, LOG_ERROR, "modbus: bind address '%s' is not a usable IPv4 address", opt->bind);
         destroy(srv);
         return -1;
     }

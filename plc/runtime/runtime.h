@@ -10,6 +10,7 @@
  *   modbus_server.c  Modbus/TCP server thread on libmodbus
  *   retain.c         RETAIN variables saved atomically and restored at start
  *   io_sim.c/io_none.c  the physical side of the image, behind io_layer_t
+ *   watchdog.c       forces outputs safe when run() never returns
  *   log.c            log lines and the live status line
  *   main.c           options, start-up and orderly shutdown
  *
@@ -20,6 +21,7 @@
 #define PLC_RUNTIME_H
 
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stdint.h>
 #include <stddef.h>
@@ -94,8 +96,9 @@ typedef enum plc_state {
     PLC_STATE_STOPPING = 3
 } plc_state_t;
 
-/* Extra fault kind for a run() result that plc_fault_kind_t does not name. */
-#define RT_FAULT_UNKNOWN 99
+/* Fault kinds of the runtime's own, beyond plc_fault_kind_t. */
+#define RT_FAULT_WATCHDOG 90   /* run() did not return within --watchdog ms */
+#define RT_FAULT_UNKNOWN 99    /* run() returned a kind plc_fault_kind_t does not name */
 
 /* ---------------------------------------------------------------- ranges */
 
@@ -196,6 +199,7 @@ typedef struct rt_options {
     status_mode_t status;
     double status_interval_s;      /* log-line status period when not on a TTY */
     double duration_s;             /* stop after this long (0: run until signalled) */
+    int watchdog_ms;               /* longest run() call allowed (0: no watchdog) */
 } rt_options_t;
 
 /* ------------------------------------------------------------ statistics */
@@ -231,6 +235,7 @@ typedef struct scan_stats {
 typedef struct log_sink log_sink_t;
 typedef struct modbus_server modbus_server_t;
 typedef struct retain_store retain_store_t;
+typedef struct watchdog watchdog_t;
 
 typedef struct runtime {
     rt_options_t opt;
@@ -243,9 +248,14 @@ typedef struct runtime {
     bus_image_t bimg;
 
     void *io_state;
+    pthread_mutex_t io_lock;       /* scan thread vs. watchdog at the I/O layer */
     log_sink_t *log;
     modbus_server_t *server;
     retain_store_t *retain;
+    watchdog_t *watchdog;
+    pthread_t scan_thread;
+    _Atomic uint64_t run_started_ns;   /* when the current run() call began, 0 outside run() */
+    atomic_bool watchdog_tripped;
 
     plc_state_t state;             /* written by the scan thread only */
     int32_t fault_kind;            /* why the program stopped (scan thread only) */
@@ -288,6 +298,10 @@ void retain_close(runtime_t *rt);                       /* final save, joins the
 uint32_t retain_saves(const retain_store_t *rs);
 bool retain_last_failed(const retain_store_t *rs);
 uint32_t crc32_update(uint32_t crc, const void *data, size_t len);
+
+/* watchdog.c */
+int watchdog_start(runtime_t *rt, watchdog_t **out);
+void watchdog_stop(watchdog_t *wd);
 
 /* log.c */
 typedef enum log_level { LOG_INFO, LOG_WARN, LOG_ERROR } log_level_t;

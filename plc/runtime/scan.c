@@ -129,6 +129,7 @@ static const char *fault_name(int kind)
     case PLC_FAULT_INDEX: return "array index out of bounds";
     case PLC_FAULT_SUBRANGE: return "value outside its subrange";
     case PLC_FAULT_ASSERT: return "assertion failed";
+    case RT_FAULT_WATCHDOG: return "scan watchdog";
     default: return "program fault";
     }
 }
@@ -136,9 +137,16 @@ static const char *fault_name(int kind)
 static void enter_fault(runtime_t *rt, int rc, uint64_t tick)
 {
     const plc_fault_t *f = rt->prog->fault;
-    int kind = (f && f->kind) ? f->kind : rc;
+    int kind = rc == RT_FAULT_WATCHDOG ? rc : (f && f->kind) ? f->kind : rc;
 
     rt->state = PLC_STATE_FAULTED;
+    if (kind == RT_FAULT_WATCHDOG) {
+        rt->fault_kind = kind;
+        rt->fault_line = rt->fault_col = 0;
+        log_msg(rt->log, LOG_ERROR, "program returned from run() after the watchdog fired at tick %" PRIu64
+                "; it stays stopped", tick);
+        return;
+    }
     rt->fault_kind = (kind >= PLC_FAULT_DIV_ZERO && kind <= PLC_FAULT_ASSERT) ? kind : RT_FAULT_UNKNOWN;
     rt->fault_line = f ? f->line : 0;
     rt->fault_col = f ? f->col : 0;
@@ -270,15 +278,21 @@ int scan_run(runtime_t *rt)
         hist_add(&s->wake, woke - deadline);
 
         /* Inputs latched, host writes applied, in that order. */
+        pthread_mutex_lock(&rt->io_lock);
         rt->opt.io->read_inputs(rt->io_state, rt->pimg.ix, rt->pimg.iw);
+        pthread_mutex_unlock(&rt->io_lock);
         pthread_mutex_lock(&rt->lock);
         image_take_host_writes(rt);
         pthread_mutex_unlock(&rt->lock);
 
         if (rt->state == PLC_STATE_RUNNING) {
             *prog->clock_ns = (int64_t)(tick * prog->base_tick_ns);
+            atomic_store(&rt->run_started_ns, now_ns());
             int rc = prog->run(tick);
-            if (rc != 0)
+            atomic_store(&rt->run_started_ns, 0);
+            if (atomic_load(&rt->watchdog_tripped))
+                enter_fault(rt, RT_FAULT_WATCHDOG, tick);
+            else if (rc != 0)
                 enter_fault(rt, rc, tick);
         }
         if (rt->state != PLC_STATE_RUNNING)
@@ -293,7 +307,9 @@ int scan_run(runtime_t *rt)
         publish_diag(rt, started);
         pthread_mutex_unlock(&rt->lock);
 
+        pthread_mutex_lock(&rt->io_lock);
         rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, rt->pimg.qw);
+        pthread_mutex_unlock(&rt->io_lock);
         if (rt->state == PLC_STATE_RUNNING)
             retain_after_scan(rt, woke);
 
@@ -326,7 +342,9 @@ int scan_run(runtime_t *rt)
     image_publish(rt);
     publish_diag(rt, started);
     pthread_mutex_unlock(&rt->lock);
+    pthread_mutex_lock(&rt->io_lock);
     rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, rt->pimg.qw);
+    pthread_mutex_unlock(&rt->io_lock);
     log_msg(rt->log, LOG_INFO, "outputs safe (all coils and %%QW cleared)");
     if (was_running)
         retain_capture(rt);

@@ -90,6 +90,7 @@ registers = ["1024-1027"]
 realtime = false
 rt_priority = 20
 status_interval_s = 2.5
+watchdog_ms = 250
 """
 
 
@@ -101,7 +102,7 @@ def test_a_full_config_is_read(tmp_path):
         bind="127.0.0.1", port=5021, max_clients=4, allow=["127.0.0.1/32", "10.1.2.0/24"],
         writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none",
         retain_file=tmp_path / "state" / "plc.retain", retain_interval_ms=50, retain_registers=["1024-1027"],
-        realtime=False, rt_priority=20, status_interval_s=2.5)
+        realtime=False, rt_priority=20, status_interval_s=2.5, watchdog_ms=250)
     argv = runtime.runtime_argv(Path("/x/plc-runtime"), cfg)
     assert argv[0] == "/x/plc-runtime"
     pairs = dict(zip(argv[1::2], argv[2::2]))
@@ -109,6 +110,7 @@ def test_a_full_config_is_read(tmp_path):
     assert pairs["--allow"] == "127.0.0.1/32,10.1.2.0/24"
     assert pairs["--writable-registers"] == "1024-1030,2000-2000"
     assert pairs["--retain"] == str(tmp_path / "state" / "plc.retain")
+    assert pairs["--watchdog"] == "250" and pairs["--status-interval"] == "2.5"
     assert "--no-rt" in argv
 
 
@@ -143,6 +145,7 @@ def test_defaults_and_empty_writable_lists():
     ("[scan]\nrealtime = \"yes\"\n", "[scan] realtime: expected true or false"),
     ("[scan]\nrt_priority = 100\n", "[scan] rt_priority: expected an integer 1..99"),
     ("[scan]\nstatus_interval_s = 0\n", "[scan] status_interval_s: expected a number of seconds >= 0.1"),
+    ("[scan]\nwatchdog_ms = 1.5\n", "[scan] watchdog_ms: expected an integer 0..3600000"),
 ])
 def test_bad_configs_are_rejected_with_the_place_and_the_reason(tmp_path, text, message):
     cfg_file = tmp_path / "plc.toml"

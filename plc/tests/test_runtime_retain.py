@@ -131,11 +131,13 @@ def test_a_file_from_another_program_is_rejected(binary, tmp_path):
     other_hash = h.runtime_binary(FIXTURE_LAYOUT_HASH="0x0badcafeu")
     with h.Runtime(other_hash, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
         rt.wait_for(r"rejected \(layout hash differs: saved by a different program\)")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         assert keep_and_scans(c)[0] == 0
     make_saved_file(binary, f, 321)
     more = h.runtime_binary(FIXTURE_EXTRA_RETAIN=1)
     with h.Runtime(more, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
         rt.wait_for(r"rejected \(size 38 bytes, expected 42\)")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         assert keep_and_scans(c)[0] == 0
 
 
@@ -149,15 +151,17 @@ def test_kill_9_during_retained_writes_never_loses_or_corrupts_the_last_save(tmp
     deadline = time.monotonic() + 240 * h.SLOW
     for trial in range(trials):
         assert time.monotonic() < deadline, f"too slow: {trial} trials"
+        saved_before = f.exists()
         rt = h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-interval", "0",
                        "--status", "off")
         try:
             rt.start()
-            if trial > 0:
+            if saved_before:
                 assert "retain: restored 6 bytes" in rt.log, rt.log
                 assert "rejected" not in rt.log, rt.log
-            if trial % 20 == 1:                              # the runtime applied exactly that file
+            if saved_before and trial % 20 == 1:             # the runtime applied exactly that file
                 with h.Client(rt.port) as c:
+                    h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
                     s1 = h.read_diag(c)["scans"]
                     scans = keep_and_scans(c)[1]
                     s2 = h.read_diag(c)["scans"]
@@ -169,7 +173,8 @@ def test_kill_9_during_retained_writes_never_loses_or_corrupts_the_last_save(tmp
             rt.proc.send_signal(signal.SIGKILL)
             rt.kill()
         mid_write += tmp.exists()
-        if trial == 0 and not f.exists():
+        if not f.exists():
+            assert not saved_before
             continue                                         # killed before the very first save
         after = parse(f)                                     # complete and consistent
         assert after["scans"] >= seen >= last_completed, (trial, after, seen, last_completed)

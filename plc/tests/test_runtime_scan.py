@@ -130,6 +130,37 @@ def test_a_program_fault_stops_it_with_outputs_safe_while_modbus_answers(binary)
         h.wait_until(lambda: h.read_diag(c)["scans"] > scans, 2, "the scan loop to keep running")
 
 
+def test_the_watchdog_forces_outputs_safe_when_run_never_returns(binary):
+    rt = h.Runtime(binary, "--no-rt", "--watchdog", "300").start()
+    try:
+        with h.Client(rt.port) as c:
+            c.write_register(512, 10)
+            h.wait_until(lambda: c.read_holding(1) == [11], 2, "%QW1 = 11")
+            c.write_register(1024 + 10, 13)                      # the program loops forever
+            rt.wait_for(r"error: watchdog: the program has been inside run\(\) for \d+ ms \(limit 300 ms\); "
+                        r"outputs forced safe")
+            d = h.read_diag(c)
+            assert (d["state"], d["fault_kind"]) == (h.STATE_FAULTED, 90)
+            assert c.read_coils(0, 800) == [False] * 800
+            assert c.read_holding(0, 125) == [0] * 125
+            assert c.read_holding(1024 + 30) == [4242]           # Modbus keeps answering
+    finally:
+        rc = rt.stop(signal.SIGTERM)
+    rt.assert_clean_exit(rc)
+    assert "SIGTERM received while the program is stuck: exiting with outputs safe" in rt.log
+
+
+def test_a_program_returning_after_the_watchdog_fired_stays_stopped(binary):
+    with h.Runtime(binary, "--no-rt", "--watchdog", "300") as rt, h.Client(rt.port) as c:
+        c.write_register(1024 + 10, 14)                          # one run() call of 1.5 s
+        rt.wait_for(r"watchdog: the program has been inside run\(\)")
+        rt.wait_for(r"program returned from run\(\) after the watchdog fired at tick \d+; it stays stopped")
+        scans = h.read_diag(c)["scans"]
+        h.wait_until(lambda: h.read_diag(c)["scans"] > scans + 5, 2, "the scan loop to go on")
+        assert h.read_diag(c)["state"] == h.STATE_FAULTED and c.read_coils(0) == [False]
+    assert "SIGTERM received: stopping" in rt.log                # an orderly stop by the scan thread
+
+
 # --------------------------------------------------------------------- signals
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])

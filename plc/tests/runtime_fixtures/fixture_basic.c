@@ -18,6 +18,7 @@
  *     (Fast)  tickFirst := tick; echoBit := hostBit; echoWord := inWord + 1;
  *             dOut := dIn + 1; lOut := lIn + 1;
  *             quotient := 100 / (divisor - 7);          (* divisor = 7: division by zero *)
+ *             (divisor = 13: loops forever; divisor = 14: loops for 1.5 s -- watchdog tests)
  *             IF keepIn <> 0 THEN keep := keepIn; END_IF; keepOut := keep;
  *             scans := scans + 1; scansOut := scans; clockMs := clock in ms; tickOut := tick;
  *             tickLast := tick;
@@ -29,9 +30,11 @@
  * changes the retained layout), FIXTURE_BAD_LOCATED (declares %MW30 as LINT),
  * FIXTURE_ABI_VERSION.
  */
+#define _POSIX_C_SOURCE 200809L      /* clock_gettime */
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
+#include <time.h>
 
 #include "plc_abi.h"
 
@@ -179,6 +182,14 @@ static void task_fast(uint64_t tick)
     ECHO_WORD = (int16_t)(IN_WORD + 1);
     D_OUT = (int32_t)((uint32_t)D_IN + 1u);
     L_OUT = (int64_t)((uint64_t)L_IN + 1u);
+    if (DIVISOR == 13 || DIVISOR == 14) {
+        struct timespec t0, t;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        do {
+            spin = spin + 1;
+            clock_gettime(CLOCK_MONOTONIC, &t);
+        } while (DIVISOR == 13 || (t.tv_sec - t0.tv_sec) * 1000 + (t.tv_nsec - t0.tv_nsec) / 1000000 < 1500);
+    }
     if (DIVISOR - 7 == 0) {
         fault = (plc_fault_t){ PLC_FAULT_DIV_ZERO, "MAIN", "fixture_basic.st", 42, 27 };
         return;
