@@ -132,13 +132,18 @@ static inline int64_t plc_dt_to_date(int64_t dt) { return dt - plc_dt_to_tod(dt)
 /* ----------------------------------------------------------------- strings -- */
 static inline plc_string_t plc_str(const char *s, size_t n) {
     plc_string_t r;
+    memset(&r, 0, sizeof r);
     if (n > PLC_STRING_MAX) n = PLC_STRING_MAX;
     r.len = (uint8_t)n;
     memcpy(r.body, s, n);
     r.body[n] = 0;
     return r;
 }
-static inline plc_string_t plc_str_empty(void) { plc_string_t r; r.len = 0; r.body[0] = 0; return r; }
+static inline plc_string_t plc_str_empty(void) {
+    plc_string_t r;
+    memset(&r, 0, sizeof r);
+    return r;
+}
 static inline plc_string_t plc_str_limit(plc_string_t s, size_t max) {
     if (s.len > max) { s.len = (uint8_t)max; s.body[max] = 0; }
     return s;

@@ -31,6 +31,7 @@ class TypeRef(Node):
 class EnumSpec(Node):
     values: list[tuple[str, Pos, Optional["Expr"]]]   # (NAME, pos, explicit value or None)
     base: Optional[TypeRef] = None
+    texts: list[str] = field(default_factory=list)     # the values as spelled in the source
 
 
 @dataclass(eq=False)

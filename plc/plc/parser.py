@@ -224,16 +224,18 @@ class Parser:
     def enum_spec(self, base: A.TypeRef | None) -> A.EnumSpec:
         start = self.expect_sym("(")
         values = []
+        texts = []
         while True:
             v = self.ident("an enumeration value")
             explicit = None
             if self.accept_sym(":="):
                 explicit = self.expression()
             values.append((v.value, v.pos, explicit))
+            texts.append(v.text)
             if not self.accept_sym(","):
                 break
         self.expect_sym(")", "to close the enumeration")
-        return A.EnumSpec(start.pos, values, base)
+        return A.EnumSpec(start.pos, values, base, texts)
 
     def array_spec(self) -> A.ArraySpec:
         start = self.expect_kw("ARRAY")

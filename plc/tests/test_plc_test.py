@@ -115,3 +115,13 @@ def test_an_endless_loop_inside_a_scan_is_reported_as_a_hang(tmp_path):
     assert "FAIL  TEST_Spins [hang]" in proc.stdout
     assert "PASS  TEST_After" in proc.stdout
     assert proc.returncode == 1
+
+
+def test_enum_asserts_name_the_values_and_array_helper_names_the_index(tmp_path):
+    proc = plc_test(tmp_path, str(FIXTURES / "enum_array.st"))
+    assert proc.returncode == 1
+    out = proc.stdout
+    assert "light fails: expected Green, actual Amber" in out
+    assert "light passes" not in out
+    assert "levels[3]: expected 3, actual 4" in out
+    assert "levels[1]" not in out and "levels[2]" not in out
