@@ -132,7 +132,7 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
     cppflags = ["-I" + str(RUNTIME_DIR), "-I" + str(INCLUDE_DIR)]
     cppflags += ["-I" + str(Path(d).resolve()) for d in include_dirs] + modbus_cflags
     cflags = WARNINGS + (SANITIZE if sanitize else OPTIMISE)
-    libs = modbus_libs + ["-lpthread"]
+    libs = modbus_libs + ["-lpthread", "-lm"]
 
     version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
     digest = hashlib.sha256()

@@ -278,7 +278,6 @@ void image_publish(runtime_t *rt)
 void image_make_outputs_safe(prog_image_t *p)
 {
     memset(p->qx, 0, sizeof p->qx);
-    memset(p->qw, 0, sizeof p->qw);
 }
 
 void image_host_write_coil(bus_image_t *b, unsigned a, bool on)

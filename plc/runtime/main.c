@@ -7,8 +7,8 @@
  * thread (SCHED_FIFO when permitted).
  *
  * SIGINT/SIGTERM are blocked in every thread and polled by the scan loop; on
- * either the program stops, outputs go safe (all coils and %QW cleared, in
- * the image and at the I/O layer), retained data are flushed, the server
+ * either the program stops, outputs go safe (all coils cleared in the image,
+ * coils and words at zero at the I/O layer), retained data are flushed, the server
  * closes its connections and the process exits 0.
  */
 #define _GNU_SOURCE

@@ -156,8 +156,8 @@ typedef struct bus_image {
 /* ------------------------------------------------------------- io layer */
 
 /* The physical side of the image.  read_inputs() runs at the start of each
- * scan, write_outputs() at its end (with all-zero outputs while the program
- * is stopped).  Both run on the scan thread and must not block for long. */
+ * scan, write_outputs() at its end (with all-zero coils and words while the
+ * program is stopped).  Both run on the scan thread and must not block for long. */
 typedef struct io_layer {
     const char *name;
     const char *description;
@@ -268,6 +268,9 @@ typedef struct runtime {
 int image_bind_program(runtime_t *rt, char *err, size_t errlen);
 void image_take_host_writes(runtime_t *rt);          /* caller holds rt->lock */
 void image_publish(runtime_t *rt);                   /* caller holds rt->lock */
+/* Safe state: every coil (%QX) FALSE.  %QW keep their last values in the image
+ * (status words the host still needs, e.g. the tool in the spindle); the I/O
+ * layer gets all-zero outputs, coils and words, while the program is stopped. */
 void image_make_outputs_safe(prog_image_t *p);
 void diag_put16(bus_image_t *b, unsigned off, uint16_t v);
 void diag_put32(bus_image_t *b, unsigned off, uint32_t v);

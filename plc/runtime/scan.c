@@ -242,6 +242,9 @@ static int stop_signal(const sigset_t *stop)
     return sig > 0 ? sig : 0;
 }
 
+/* What the I/O layer gets for %QW while the program is stopped. */
+static const uint16_t no_words[MAP_WORDS];
+
 int scan_run(runtime_t *rt)
 {
     const plc_program_t *prog = rt->prog;
@@ -308,7 +311,8 @@ int scan_run(runtime_t *rt)
         pthread_mutex_unlock(&rt->lock);
 
         pthread_mutex_lock(&rt->io_lock);
-        rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, rt->pimg.qw);
+        rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx,
+                                  rt->state == PLC_STATE_RUNNING ? rt->pimg.qw : no_words);
         pthread_mutex_unlock(&rt->io_lock);
         if (rt->state == PLC_STATE_RUNNING)
             retain_after_scan(rt, woke);
@@ -343,9 +347,9 @@ int scan_run(runtime_t *rt)
     publish_diag(rt, started);
     pthread_mutex_unlock(&rt->lock);
     pthread_mutex_lock(&rt->io_lock);
-    rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, rt->pimg.qw);
+    rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, no_words);
     pthread_mutex_unlock(&rt->io_lock);
-    log_msg(rt->log, LOG_INFO, "outputs safe (all coils and %%QW cleared)");
+    log_msg(rt->log, LOG_INFO, "outputs safe (all coils cleared, I/O outputs at zero)");
     if (was_running)
         retain_capture(rt);
     log_summary(rt);

@@ -4,8 +4,8 @@
  * An endless loop in ST (WHILE TRUE, a FOR whose bound never comes) would
  * leave the last published outputs energised forever.  A watchdog thread
  * looks every 20 ms at how long the current run() call has lasted; beyond
- * --watchdog milliseconds it forces the outputs safe by itself (coils and
- * %QW cleared in the Modbus image and at the I/O layer), reports the fault in
+ * --watchdog milliseconds it forces the outputs safe by itself (coils cleared
+ * in the Modbus image, coils and words at zero at the I/O layer), reports the fault in
  * the diagnostic block and the log, and from then on answers SIGINT/SIGTERM
  * in place of the stuck scan thread: it flushes the log and exits 0 (retained
  * data stay as of the last completed save).  If run() does return, the scan
@@ -38,7 +38,6 @@ static void force_outputs_safe(runtime_t *rt, uint64_t stuck_ns)
 
     pthread_mutex_lock(&rt->lock);
     memset(b->coils, 0, sizeof b->coils);
-    memset(&b->holding[MAP_HOLD_QW], 0, MAP_WORDS * sizeof b->holding[0]);
     diag_put16(b, DIAG_STATE, PLC_STATE_FAULTED);
     diag_put16(b, DIAG_FAULT_KIND, RT_FAULT_WATCHDOG);
     diag_put16(b, DIAG_FAULT_LINE, 0);
