@@ -16,7 +16,8 @@ from .driver import UserError, compile_c, compile_sources, print_diagnostics
 
 def cmd_check(args) -> int:
     t0 = time.perf_counter()
-    res = compile_sources(args.paths, portability=not args.no_portability, target=args.target, generate=False)
+    res = compile_sources(args.paths, portability=not args.no_portability, target=args.target, generate=False,
+                          test_build="auto")
     print_diagnostics(res, quiet=args.quiet)
     n_err, n_warn = len(res.diags.errors), len(res.diags.warnings)
     if not args.quiet:

@@ -7,6 +7,7 @@ as diagnostics.
 from __future__ import annotations
 
 import hashlib
+import re
 import os
 import shutil
 import subprocess
@@ -23,6 +24,8 @@ STDLIB = PKG / "stdlib"
 INCLUDE = PKG.parent / "include"
 STANDARD_FBS = STDLIB / "standard_fbs.st"
 TESTLIB = STDLIB / "testing"
+
+TEST_DECL = re.compile(r"\bFUNCTION_BLOCK\s+TEST_", re.IGNORECASE)
 
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2"]
 
@@ -102,11 +105,15 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
     result = CompileResult(diags, sources)
     builtins = set()
     inputs: list[tuple[str, str]] = []
+    user_files = collect_files(paths)
+    if test_build == "auto":
+        # checking tests: load the test library when a file declares a TEST_ function block
+        test_build = any(TEST_DECL.search(read_source(f)) for f in user_files)
     for f in builtin_files(test_build):
         name = f"<plc>/{f.name}" if f.parent == STDLIB else f"<plc>/testing/{f.name}"
         builtins.add(name)
         inputs.append((name, read_source(f)))
-    for f in collect_files(paths):
+    for f in user_files:
         inputs.append((display_name(f), read_source(f)))
     for name, text in extra_texts or []:
         inputs.append((name, text))

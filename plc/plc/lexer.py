@@ -121,9 +121,6 @@ class Lexer:
             if self.peek() == "*" and self.peek(1) == ")":
                 self.advance(2)
                 return
-            if self.peek() == "(" and self.peek(1) == "*":
-                self.diags.portable(self.pos(), "'(*' inside a comment: comments do not nest in MATIEC",
-                                    "the comment ends at the first '*)'", code="portability.nested-comment")
             self.advance()
         self.diags.error(start, "unterminated comment", "a '(*' comment needs a closing '*)'")
 
@@ -141,7 +138,8 @@ class Lexer:
 
     def pragma(self) -> None:
         start = self.pos()
-        self.diags.warning(start, "pragma ignored", code="pragma")
+        self.diags.portable(start, "pragma {...} ignored here, but MATIEC pastes it into its C output",
+                            "remove it", code="portability.pragma")
         while self.i < len(self.src) and self.peek() != "}":
             self.advance()
         if self.i >= len(self.src):

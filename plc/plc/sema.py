@@ -309,8 +309,9 @@ class Analyzer:
                     return existing
             at.cname = f"ARR{len(self.prog.array_types)}"
             self.prog.array_types.append(at)
-            if isinstance(elem, T.ArrayType):
-                pass
+            if isinstance(T.resolve_base(elem), T.ArrayType):
+                self.port(spec.pos, "arrays of arrays break OpenPLC's C build", "use a 2-D array ARRAY[a..b, c..d]",
+                          code="portability.array-of-array")
             if at.count() > 1_000_000:
                 self.err(spec.pos, f"array of {at.count()} elements is too large")
             return at
@@ -453,6 +454,9 @@ class Analyzer:
             self.err(d.pos, f"'{d.text}' is the name of the FUNCTION itself (its result)")
             return None
         t = self.type_spec(d.spec)
+        if isinstance(t, T.PouType) and d.section == "VAR_GLOBAL":
+            self.port(d.pos, "function block instances in VAR_GLOBAL break OpenPLC's C build",
+                      "declare the instance in the PROGRAM", code="portability.global-fb")
         if isinstance(t, T.PouType):
             if t.kind == "PROGRAM":
                 self.err(d.pos, "a PROGRAM cannot be instantiated inside a POU", "instantiate it in a RESOURCE")
@@ -467,8 +471,7 @@ class Analyzer:
                 self.err(d.pos, f"a function block instance cannot be a {d.section}")
                 t = T.ERROR
             if d.init is not None and not isinstance(t, T.ErrorType):
-                self.err(d.init.pos if hasattr(d.init, "pos") else d.pos,
-                         "a function block instance cannot have an initial value here")
+                self.check_instance_init(d.init, t)
         if d.location is not None:
             self.check_location(d, t, pou)
         if d.init is not None and not isinstance(t, (T.ErrorType, T.PouType)):
@@ -506,12 +509,28 @@ class Analyzer:
             self.err(loc.pos, f"{loc.text}: only bit addresses have a '.' part")
 
     # -------------------------------------------------------------- initialisers --
+    def check_instance_init(self, init, t: T.PouType) -> None:
+        """`timer : TON := (PT := T#2s);` presets members of a function block instance (MATIEC accepts it)."""
+        if not isinstance(init, A.StructInit):
+            self.err(init.pos if hasattr(init, "pos") else t.pou.pos,
+                     "a function block instance can only be initialised with (member := value, ...)")
+            return
+        for name, pos, v in init.fields:
+            m = t.scope.vars.get(name) if t.scope is not None else None
+            if m is None or m.section in ("VAR_IN_OUT", "VAR_EXTERNAL", "VAR_TEMP"):
+                self.err(pos, f"{t.name} has no member '{name}' that can be initialised")
+                continue
+            self.check_init(v, m.type)
+
     def check_init(self, init, t: T.Type) -> None:
         b = T.resolve_base(t)
         if isinstance(init, A.ArrayInit):
             if not isinstance(b, T.ArrayType):
                 self.err(init.pos, f"an array initialiser [...] cannot initialise {t}")
                 return
+            if isinstance(T.resolve_base(b.elem), T.StructType):
+                self.port(init.pos, "initialisers of arrays of structures break OpenPLC's C build",
+                          "initialise the elements in code", code="portability.struct-array-init")
             count = 0
             elem = b.elem
             for rep, v in init.items:
@@ -613,6 +632,12 @@ class Analyzer:
                              self.suggest(pi.type_name, [n for n, p in self.prog.pous.items() if p.kind == "PROGRAM"]))
                     continue
                 task = None
+                if pi.task is None:
+                    self.port(pi.pos, f"program instance '{pi.text}' has no task: MATIEC rejects it",
+                              "PROGRAM inst WITH task : Type;", code="portability.no-task")
+                if not res.name:
+                    self.port(pi.pos, "TASK and PROGRAM directly in the CONFIGURATION are rejected by MATIEC",
+                              "put them in RESOURCE Res0 ON PLC", code="portability.no-resource")
                 if pi.task is not None:
                     task = tasks.get(pi.task)
                     if task is None:
@@ -867,6 +892,8 @@ class Analyzer:
                 a.name = p.name
         seen = set()
         for a in c.args:
+            if a.name is None:          # a positional argument past the inputs: reported above
+                continue
             if a.name in seen:
                 self.err(a.pos, f"parameter '{a.text or a.name}' given twice")
                 continue
@@ -977,8 +1004,12 @@ class Analyzer:
         if isinstance(e, A.StrLit):
             if e.prefix and e.prefix not in ("STRING",):
                 self.err(e.pos, f"{e.prefix}# cannot prefix a string literal")
-            if len(e.value.encode("latin-1", "replace")) > 126:
-                self.err(e.pos, f"string literal of {len(e.value)} characters is longer than 126")
+            n = len(e.value.encode("latin-1", "replace"))
+            if n > 126:
+                self.err(e.pos, f"string literal of {n} characters is longer than 126")
+            elif n == 126:
+                self.port(e.pos, "a string literal of 126 characters breaks OpenPLC's C build (125 at most)",
+                          code="portability.string-literal")
             return T.STRING
         if isinstance(e, A.TimeLit):
             if e.kind not in TIME_KIND_TYPE:
@@ -991,6 +1022,10 @@ class Analyzer:
                           "DATE": "e.g. D#2024-01-31", "DT": "e.g. DT#2024-01-31-12:30:00"}[e.kind])
                 return T.ERROR
             e.value = v
+            low = e.text.lower()
+            if e.kind == "TIME" and ("us" in low or "ns" in low):
+                self.port(e.pos, "'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
+                          "write fractions of ms, e.g. T#1.5ms", code="portability.time-unit")
             return TIME_KIND_TYPE[e.kind]
         if isinstance(e, A.EnumLit):
             return self.enum_lit(e)
@@ -1090,6 +1125,8 @@ class Analyzer:
                 et = enums[0]
             elif isinstance(exp, T.EnumType) and exp in enums:
                 et = exp
+                self.port(e.pos, f"'{e.text}' is a value of several enumerations ({', '.join(x.name for x in enums)}); "
+                          "MATIEC needs it qualified", f"write {et.name}#{e.text}", code="portability.enum-qualify")
             else:
                 self.err(e.pos, f"enumeration value '{e.text}' is ambiguous ({', '.join(x.name for x in enums)})",
                          f"qualify it: {enums[0].name}#{e.text}")
@@ -1258,7 +1295,8 @@ class Analyzer:
                 self.err(e.pos, f"cannot compare values of type {lt}")
                 return T.ERROR
             if isinstance(lb, T.EnumType) and op not in ("=", "<>"):
-                pass
+                self.port(e.pos, f"'{op}' on enumeration values is rejected by MATIEC", "compare with = or <>",
+                          code="portability.enum-order")
             if T.is_elem(lb, "bool") and op not in ("=", "<>"):
                 pass
             return T.BOOL
@@ -1422,6 +1460,9 @@ class Analyzer:
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' needs a variable, not an expression")
                 elif not T.same_type(at, p.type) and not isinstance(at, T.ErrorType):
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' is {p.type}, the argument is {at}")
+                elif isinstance(a.value, A.Index):
+                    self.port(a.pos, "an array element as a FUNCTION's VAR_IN_OUT breaks OpenPLC's C build",
+                              "copy it to a variable and back", code="portability.inout-element")
             else:
                 if a.output:
                     self.err(a.pos, f"'{p.text}' is an input: write `{p.text} := value`")
@@ -1437,7 +1478,16 @@ class Analyzer:
     def conversion_call(self, c: A.Call, conv, scope) -> T.Type:
         src, dst, generic = conv
         c.target = ("CONV", src, dst)
-        if len(c.args) != 1 or c.args[0].output:
+        for a in c.args:
+            if a.name == "EN" and not a.output:
+                self.expr(a.value, scope, T.BOOL)
+                self.assign_compat(a.value, a.value.ty, T.BOOL, a.pos, "EN")
+            elif a.name == "ENO" and a.output and a.value is not None:
+                tt = self.lvalue(a.value, "write ENO into")
+                self.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
+        c.args = [a for a in c.args if a.name not in ("EN", "ENO")] + \
+            [a for a in c.args if a.name in ("EN", "ENO")]
+        if len([a for a in c.args if a.name not in ("EN", "ENO")]) != 1 or c.args[0].output:
             self.err(c.pos, f"{c.text} takes exactly one input")
             for a in c.args:
                 if a.value is not None and not a.output:
