@@ -402,7 +402,8 @@ int retain_open(runtime_t *rt, retain_store_t **out)
     pthread_mutex_init(&rs->mu, NULL);
     pthread_cond_init(&rs->cv, NULL);
 
-    restore(rs);
+    if (rs->size > 0)
+        restore(rs);
     gather(rs, rs->seen);
 
     if (pthread_create(&rs->writer, NULL, writer_thread, rs) != 0) {
@@ -411,8 +412,11 @@ int retain_open(runtime_t *rt, retain_store_t **out)
         free(rs);
         return -1;
     }
-    log_msg(rt->log, LOG_INFO, "retain: %zu bytes retained, saved to %s at most every %d ms and at shutdown",
-            rs->size, rs->path, rt->opt.retain_interval_ms);
+    if (rs->size == 0)
+        log_msg(rt->log, LOG_INFO, "retain: the program has no RETAIN data; %s stays as it is", rs->path);
+    else
+        log_msg(rt->log, LOG_INFO, "retain: %zu bytes retained, saved to %s at most every %d ms and at shutdown",
+                rs->size, rs->path, rt->opt.retain_interval_ms);
     *out = rs;
     return 0;
 }
