@@ -45,6 +45,30 @@ def cmd_build(args) -> int:
     return 0
 
 
+def cmd_run(args) -> int:
+    from . import runtime
+    from .testrunner import project_root
+    root = project_root()
+    paths = args.paths or ([str(root / "st_src")] if root else [])
+    if not paths:
+        raise UserError("no ST sources given and no project st_src/ found from here")
+    res = compile_sources(paths, portability=False)
+    print_diagnostics(res, quiet=True)
+    if not res.ok:
+        print(f"plc run: the program does not compile ({len(res.diags.errors)} error(s))", file=sys.stderr)
+        return 1
+    if not res.program.configs:
+        raise UserError("the sources have no CONFIGURATION: nothing to run")
+    c_file = Path(args.build_dir) / "program" / "program.c"
+    c_file.parent.mkdir(parents=True, exist_ok=True)
+    if not c_file.exists() or c_file.read_text() != res.c_text:
+        c_file.write_text(res.c_text)
+    try:
+        return runtime.run_command(args, c_file)
+    except (runtime.ConfigError, runtime.RuntimeBuildError) as e:
+        raise UserError(str(e)) from None
+
+
 def add_compile_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="PATH", help=".st files or directories (searched recursively)")
     p.add_argument("--no-portability", action="store_true", help="do not warn about constructs MATIEC rejects")
@@ -68,6 +92,14 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_build)
     from . import testrunner
     testrunner.add_parser(sub)
+    from . import runtime
+    p = sub.add_parser("run", help="build and run the soft-PLC (Modbus/TCP, OpenPLC map)", description=
+                       "Compile the ST program (default: the project's st_src/) and run it as a soft-PLC serving "
+                       "Modbus/TCP with OpenPLC's address map. Ctrl-C stops it: outputs go safe, RETAIN data "
+                       "is saved.")
+    p.add_argument("paths", nargs="*", metavar="PATH", help="ST files or directories (default: st_src/)")
+    runtime.add_run_arguments(p)
+    p.set_defaults(func=cmd_run)
     sub.add_parser("seq", help="check and compile tool-change sequences (plc seq --help)", add_help=False)
     return ap
 

@@ -771,6 +771,8 @@ class Analyzer:
                          "copy it to a local variable first")
             if sym in self.loop.for_vars:
                 self.err(target.pos, f"cannot {verb} the FOR control variable '{sym.text}' inside its loop")
+        elif isinstance(root, A.Name) and root.sym == "EN":
+            self.err(target.pos, f"cannot {verb} EN: it is an input")
         elif isinstance(root, A.Name) and isinstance(root.sym, tuple):
             self.err(target.pos, f"cannot {verb} the enumeration value '{root.name}'")
         elif isinstance(root, A.Name) and isinstance(root.sym, FuncSym):
@@ -873,73 +875,8 @@ class Analyzer:
         ft = T.resolve_base(sym.type)
         c.target = sym
         c.ty = None
-        scope = ft.scope
-        if scope is None:
-            return
-        params = scope.params()
-        positional = [a for a in c.args if a.name is None]
-        formal = [a for a in c.args if a.name is not None]
-        if positional and formal:
-            self.err(c.pos, f"call of {c.text} mixes positional and formal (name :=) arguments")
-            return
-        if positional:
-            self.port(c.pos, "positional arguments in a function block call",
-                      "name the inputs: fb(IN := x)", code="portability.fb-positional") if False else None
-            ins = [p for p in params if p.section in ("VAR_INPUT", "VAR_IN_OUT")]
-            if len(positional) > len(ins):
-                self.err(positional[len(ins)].pos, f"too many arguments for {ft.name} (it has {len(ins)} inputs)")
-            for a, p in zip(positional, ins):
-                a.name = p.name
-        seen = set()
-        for a in c.args:
-            if a.name is None:          # a positional argument past the inputs: reported above
-                continue
-            if a.name in seen:
-                self.err(a.pos, f"parameter '{a.text or a.name}' given twice")
-                continue
-            seen.add(a.name)
-            if a.name in ("EN", "ENO"):
-                if a.name == "EN" and not a.output:
-                    self.expr(a.value, self.scope, T.BOOL)
-                    self.assign_compat(a.value, a.value.ty, T.BOOL, a.pos, "EN")
-                elif a.name == "ENO" and a.output:
-                    if a.value is not None:
-                        tt = self.lvalue(a.value, "write ENO into")
-                        self.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
-                else:
-                    self.err(a.pos, f"{a.name} must be passed with {'=>' if a.name == 'ENO' else ':='}")
-                continue
-            p = scope.lookup(a.name)
-            if p is None or p.section not in ("VAR_INPUT", "VAR_OUTPUT", "VAR_IN_OUT"):
-                self.err(a.pos, f"{ft.name} has no parameter '{a.text or a.name}'",
-                         self.suggest(a.name, [q.name for q in params]))
-                continue
-            a.param = p
-            if p.section == "VAR_OUTPUT":
-                if not a.output:
-                    self.err(a.pos, f"'{p.text}' is an output: write `{p.text} => variable`")
-                    continue
-                if a.value is not None:
-                    tt = self.lvalue(a.value, "write an output into")
-                    self.assign_compat(a.value, p.type, tt, a.pos, f"output {p.text}")
-            else:
-                if a.output:
-                    self.err(a.pos, f"'{p.text}' is an input: write `{p.text} := value`")
-                    continue
-                if a.value is None:
-                    continue
-                if p.section == "VAR_IN_OUT":
-                    at = self.lvalue(a.value, "pass as VAR_IN_OUT")
-                    if not self.is_lvalue(a.value):
-                        self.err(a.pos, f"VAR_IN_OUT '{p.text}' needs a variable, not an expression")
-                    elif not T.same_type(at, p.type) and not isinstance(at, T.ErrorType):
-                        self.err(a.pos, f"VAR_IN_OUT '{p.text}' is {p.type}, the argument is {at}")
-                else:
-                    at = self.expr(a.value, self.scope, p.type)
-                    self.assign_compat(a.value, at, p.type, a.pos, f"input {p.text}")
-        for p in params:
-            if p.section == "VAR_IN_OUT" and p.name not in seen:
-                self.err(c.pos, f"call of {sym.text} must connect VAR_IN_OUT '{p.text}'")
+        if ft.scope is not None:
+            self.bind_args(c, ft.scope, ft.name, sym.text, is_fb=True)
 
     def is_lvalue(self, e: A.Expr) -> bool:
         if isinstance(e, A.Name):
@@ -1112,6 +1049,9 @@ class Analyzer:
         if sym is None and e.name == "CURRENT_TIME" and self.in_builtin():
             e.sym = "CURRENT_TIME"
             return T.TIME
+        if sym is None and e.name in ("EN", "ENO") and self.current_pou is not None:
+            e.sym = e.name          # the POU's implicit EN input / ENO output
+            return T.BOOL
         if sym is not None:
             if sym.section == "VAR_EXTERNAL" and sym.global_sym is None and scope is not None \
                     and scope.kind != "CONFIGURATION" and not self.prog.configs:
@@ -1402,89 +1342,94 @@ class Analyzer:
             c.site = self.prog.site(c.pos, self.current_pou.text if self.current_pou else "")
 
     def user_call(self, c: A.Call, fs: FuncSym, scope) -> None:
-        params = fs.scope.params()
+        self.bind_args(c, fs.scope, fs.text, fs.text, is_fb=False)
+
+    def bind_args(self, c: A.Call, callee: Scope, callee_name: str, call_name: str, is_fb: bool) -> None:
+        """Match a call's arguments to the callee's parameters and check each (FB instances and FUNCTIONs)."""
+        params = callee.params()
         positional = [a for a in c.args if a.name is None]
         formal = [a for a in c.args if a.name is not None]
         if positional and formal:
-            self.err(c.pos, f"call of {fs.text} mixes positional and formal (name :=) arguments")
+            self.err(c.pos, f"call of {c.text} mixes positional and formal (name :=) arguments")
+            if is_fb:
+                return
         if positional:
             ins = [p for p in params if p.section in ("VAR_INPUT", "VAR_IN_OUT")]
             if len(positional) > len(ins):
-                self.err(positional[len(ins)].pos, f"too many arguments for {fs.text} (it takes {len(ins)})")
+                self.err(positional[len(ins)].pos, f"too many arguments for {callee_name} (it has {len(ins)} inputs)")
             for a, p in zip(positional, ins):
                 a.name = p.name
-            if len(positional) < len(ins) and not formal:
+            if not is_fb and len(positional) < len(ins) and not formal:
                 missing = [p.text for p in ins[len(positional):]]
-                self.err(c.pos, f"call of {fs.text} is missing {', '.join(missing)}",
+                self.err(c.pos, f"call of {callee_name} is missing {', '.join(missing)}",
                          "a positional call must give every input")
         seen = set()
         for a in c.args:
-            if a.name is None:
-                for v in ([a.value] if a.value is not None else []):
-                    self.expr(v, scope, None)
+            if a.name is None:          # a positional argument past the inputs: reported above
+                if not is_fb and a.value is not None:
+                    self.expr(a.value, self.scope, None)
                 continue
             if a.name in seen:
                 self.err(a.pos, f"parameter '{a.text or a.name}' given twice")
                 continue
             seen.add(a.name)
-            if a.name == "EN":
-                self.expr(a.value, scope, T.BOOL)
-                self.assign_compat(a.value, a.value.ty, T.BOOL, a.pos, "EN")
+            if a.name in ("EN", "ENO"):
+                self.en_eno_arg(a)
                 continue
-            if a.name == "ENO":
-                if not a.output:
-                    self.err(a.pos, "ENO is an output: write `ENO => variable`")
-                elif a.value is not None:
-                    tt = self.lvalue(a.value, "write ENO into")
-                    self.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
-                continue
-            p = fs.scope.lookup(a.name)
+            p = callee.lookup(a.name)
             if p is None or p.section not in ("VAR_INPUT", "VAR_OUTPUT", "VAR_IN_OUT"):
-                self.err(a.pos, f"{fs.text} has no parameter '{a.text or a.name}'",
+                self.err(a.pos, f"{callee_name} has no parameter '{a.text or a.name}'",
                          self.suggest(a.name, [q.name for q in params]))
                 continue
             a.param = p
             if p.section == "VAR_OUTPUT":
                 if not a.output:
                     self.err(a.pos, f"'{p.text}' is an output: write `{p.text} => variable`")
-                    continue
-                if a.value is not None:
+                elif a.value is not None:
                     tt = self.lvalue(a.value, "write an output into")
                     self.assign_compat(a.value, p.type, tt, a.pos, f"output {p.text}")
-            elif p.section == "VAR_IN_OUT":
-                if a.output or a.value is None:
+                continue
+            if a.output:
+                self.err(a.pos, f"'{p.text}' is an input: write `{p.text} := value`")
+                continue
+            if a.value is None:
+                if p.section == "VAR_IN_OUT" and not is_fb:
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' must be connected with :=")
-                    continue
+                continue
+            if p.section == "VAR_IN_OUT":
                 at = self.lvalue(a.value, "pass as VAR_IN_OUT")
                 if not self.is_lvalue(a.value):
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' needs a variable, not an expression")
                 elif not T.same_type(at, p.type) and not isinstance(at, T.ErrorType):
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' is {p.type}, the argument is {at}")
-                elif isinstance(a.value, A.Index):
+                elif not is_fb and isinstance(a.value, A.Index):
                     self.port(a.pos, "an array element as a FUNCTION's VAR_IN_OUT breaks OpenPLC's C build",
                               "copy it to a variable and back", code="portability.inout-element")
             else:
-                if a.output:
-                    self.err(a.pos, f"'{p.text}' is an input: write `{p.text} := value`")
-                    continue
-                if a.value is None:
-                    continue
-                at = self.expr(a.value, scope, p.type)
+                at = self.expr(a.value, self.scope, p.type)
                 self.assign_compat(a.value, at, p.type, a.pos, f"input {p.text}")
         for p in params:
             if p.section == "VAR_IN_OUT" and p.name not in seen:
-                self.err(c.pos, f"call of {fs.text} must connect VAR_IN_OUT '{p.text}'")
+                self.err(c.pos, f"call of {call_name} must connect VAR_IN_OUT '{p.text}'")
+
+    def en_eno_arg(self, a: A.Arg) -> None:
+        """EN := condition and ENO => variable, accepted by every call."""
+        if a.name == "EN" and not a.output:
+            self.expr(a.value, self.scope, T.BOOL)
+            self.assign_compat(a.value, a.value.ty, T.BOOL, a.pos, "EN")
+        elif a.name == "ENO" and a.output:
+            if a.value is not None:
+                tt = self.lvalue(a.value, "write ENO into")
+                self.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
+        else:
+            self.err(a.pos, f"{a.name} must be passed with {'=>' if a.name == 'ENO' else ':='}")
 
     def conversion_call(self, c: A.Call, conv, scope) -> T.Type:
         src, dst, generic = conv
         c.target = ("CONV", src, dst)
         for a in c.args:
-            if a.name == "EN" and not a.output:
-                self.expr(a.value, scope, T.BOOL)
-                self.assign_compat(a.value, a.value.ty, T.BOOL, a.pos, "EN")
-            elif a.name == "ENO" and a.output and a.value is not None:
-                tt = self.lvalue(a.value, "write ENO into")
-                self.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
+            if a.name in ("EN", "ENO"):
+                self.en_eno_arg(a)
         c.args = [a for a in c.args if a.name not in ("EN", "ENO")] + \
             [a for a in c.args if a.name in ("EN", "ENO")]
         if len([a for a in c.args if a.name not in ("EN", "ENO")]) != 1 or c.args[0].output:
