@@ -208,37 +208,82 @@ static inline plc_string_t plc_str_u64(uint64_t v) {
     int n = snprintf(buf, sizeof buf, "%llu", (unsigned long long)v);
     return plc_str(buf, (size_t)n);
 }
+/* Bit strings print as OpenPLC's MATIEC prints them: lower-case hex, no padding ("16#beef"). */
 static inline plc_string_t plc_str_hex(uint64_t v, int bits) {
     char buf[40];
-    int n = snprintf(buf, sizeof buf, "16#%0*llX", bits / 4, (unsigned long long)v);
+    (void)bits;
+    int n = snprintf(buf, sizeof buf, "16#%llx", (unsigned long long)v);
     return plc_str(buf, (size_t)n);
 }
+/* REAL and LREAL both print with ten significant digits, as MATIEC does. */
 static inline plc_string_t plc_str_real(double v) {
     char buf[48];
-    int n = snprintf(buf, sizeof buf, "%.7g", v);
+    int n = snprintf(buf, sizeof buf, "%.10g", v);
     return plc_str(buf, (size_t)n);
 }
-static inline plc_string_t plc_str_lreal(double v) {
-    char buf[48];
-    int n = snprintf(buf, sizeof buf, "%.15g", v);
-    return plc_str(buf, (size_t)n);
-}
+static inline plc_string_t plc_str_lreal(double v) { return plc_str_real(v); }
 static inline plc_string_t plc_str_bool(int v) { return v ? plc_str("TRUE", 4) : plc_str("FALSE", 5); }
+/* TIME in MATIEC's format: T#<d>d<h>h<m>m<s>s<ms>ms, ending after the last
+ * non-zero part (T#0d, T#0d1h, T#0d0h0m1s500ms); every part is a truncated
+ * quotient, so a negative time carries its sign on each part, as in MATIEC. */
 static inline plc_string_t plc_str_time(int64_t t) {
+    char buf[96];
+    long long sec = (long long)(t / PLC_NS_PER_S), ns = (long long)(t % PLC_NS_PER_S);
+    long long d = sec / 86400, rem = sec % 86400;
+    long long h = rem / 3600, m = rem % 3600 / 60, s = rem % 60;
+    int n;
+    if (rem == 0 && ns == 0)
+        n = snprintf(buf, sizeof buf, "T#%lldd", d);
+    else if (rem % 3600 == 0 && ns == 0)
+        n = snprintf(buf, sizeof buf, "T#%lldd%lldh", d, h);
+    else if (s == 0 && ns == 0)
+        n = snprintf(buf, sizeof buf, "T#%lldd%lldh%lldm", d, h, m);
+    else if (ns == 0)
+        n = snprintf(buf, sizeof buf, "T#%lldd%lldh%lldm%llds", d, h, m, s);
+    else
+        n = snprintf(buf, sizeof buf, "T#%lldd%lldh%lldm%llds%gms", d, h, m, s, (double)ns / 1e6);
+    return plc_str(buf, (size_t)n);
+}
+/* Civil date (proleptic Gregorian) of a day number counted from 1970-01-01. */
+static inline void plc_civil(int64_t days, long long *y, int *mo, int *dd) {
+    int64_t z = days + 719468;
+    int64_t era = (z >= 0 ? z : z - 146096) / 146097;
+    int64_t doe = z - era * 146097;                                  /* 0..146096 */
+    int64_t yoe = (doe - doe / 1460 + doe / 36524 - doe / 146096) / 365;
+    int64_t doy = doe - (365 * yoe + yoe / 4 - yoe / 100);          /* 0..365, from March 1st */
+    int64_t mp = (5 * doy + 2) / 153;
+    *dd = (int)(doy - (153 * mp + 2) / 5 + 1);
+    *mo = (int)(mp < 10 ? mp + 3 : mp - 9);
+    *y = (long long)(yoe + era * 400 + (*mo <= 2));
+}
+/* "HH:MM:SS", or "HH:MM:SS.ffffff" when there is a fraction (MATIEC's format). */
+static inline int plc_fmt_tod(char *buf, size_t size, int64_t ns_of_day) {
+    long long sec = (long long)(ns_of_day / PLC_NS_PER_S), frac = (long long)(ns_of_day % PLC_NS_PER_S);
+    if (frac == 0)
+        return snprintf(buf, size, "%02lld:%02lld:%02lld", sec / 3600, sec / 60 % 60, sec % 60);
+    return snprintf(buf, size, "%02lld:%02lld:%09.6f", sec / 3600, sec / 60 % 60, (double)(sec % 60) + (double)frac / 1e9);
+}
+static inline plc_string_t plc_str_tod(int64_t t) {
     char buf[64];
-    int n = 0;
-    uint64_t a = t < 0 ? (uint64_t)0 - (uint64_t)t : (uint64_t)t;
-    n += snprintf(buf + n, sizeof buf - (size_t)n, "T#%s", t < 0 ? "-" : "");
-    uint64_t d = a / 86400000000000ULL, h = a / 3600000000000ULL % 24, m = a / 60000000000ULL % 60;
-    uint64_t s = a / 1000000000ULL % 60, ms = a / 1000000ULL % 1000, us = a / 1000ULL % 1000, ns = a % 1000;
-    if (d) n += snprintf(buf + n, sizeof buf - (size_t)n, "%llud", (unsigned long long)d);
-    if (h) n += snprintf(buf + n, sizeof buf - (size_t)n, "%lluh", (unsigned long long)h);
-    if (m) n += snprintf(buf + n, sizeof buf - (size_t)n, "%llum", (unsigned long long)m);
-    if (s) n += snprintf(buf + n, sizeof buf - (size_t)n, "%llus", (unsigned long long)s);
-    if (ms) n += snprintf(buf + n, sizeof buf - (size_t)n, "%llums", (unsigned long long)ms);
-    if (us) n += snprintf(buf + n, sizeof buf - (size_t)n, "%lluus", (unsigned long long)us);
-    if (ns) n += snprintf(buf + n, sizeof buf - (size_t)n, "%lluns", (unsigned long long)ns);
-    if (a == 0) n += snprintf(buf + n, sizeof buf - (size_t)n, "0s");
+    int n = snprintf(buf, sizeof buf, "TOD#");
+    n += plc_fmt_tod(buf + n, sizeof buf - (size_t)n, plc_dt_to_tod(t));
+    return plc_str(buf, (size_t)n);
+}
+static inline plc_string_t plc_str_date(int64_t t) {
+    char buf[64];
+    long long y;
+    int mo, dd;
+    plc_civil((plc_dt_to_date(t) / PLC_NS_PER_DAY), &y, &mo, &dd);
+    int n = snprintf(buf, sizeof buf, "D#%04lld-%02d-%02d", y, mo, dd);
+    return plc_str(buf, (size_t)n);
+}
+static inline plc_string_t plc_str_dt(int64_t t) {
+    char buf[80];
+    long long y;
+    int mo, dd;
+    plc_civil((plc_dt_to_date(t) / PLC_NS_PER_DAY), &y, &mo, &dd);
+    int n = snprintf(buf, sizeof buf, "DT#%04lld-%02d-%02d-", y, mo, dd);
+    n += plc_fmt_tod(buf + n, sizeof buf - (size_t)n, plc_dt_to_tod(t));
     return plc_str(buf, (size_t)n);
 }
 static inline int64_t plc_str_to_i64(plc_string_t s) { return strtoll(s.body, NULL, 10); }

@@ -44,6 +44,11 @@ def c_string(s: str) -> str:
     return '"' + "".join(out) + '"'
 
 
+def c_compare(a: str, cop: str, b: str) -> str:
+    """A C comparison; `x = x` is legal ST, so keep gcc's -Wtautological-compare quiet about it."""
+    return f"({a} {cop} +({b}))" if a == b else f"({a} {cop} {b})"
+
+
 class Gen:
     def __init__(self, prog: Program, test_build: bool = False, config_name: str | None = None):
         self.p = prog
@@ -213,7 +218,8 @@ class Gen:
                 params.append(f"{ct} {cid(v.name)}")
             else:
                 params.append(f"{ct} *{cid(v.name)}")
-        return f"static {self.ctype(fs.ret)} U_{fs.name}({', '.join(params) or 'void'})"
+        params.append("uint8_t *ENO__")        # the implicit ENO output, which the body may clear
+        return f"static {self.ctype(fs.ret)} U_{fs.name}({', '.join(params)})"
 
     # --------------------------------------------------------------- globals --
     def globals_decl(self) -> None:
@@ -259,6 +265,11 @@ class Gen:
             init = type_init
         if isinstance(b, T.PouType):
             self.w(f"P_{b.name}_init(&{lv});")
+            if isinstance(init, A.StructInit) and b.scope is not None:
+                for name, _pos, v in init.fields:
+                    m = b.scope.vars.get(name)
+                    if m is not None:
+                        self.emit_init(f"{lv}.{cid(name)}", m.type, v)
             return
         if isinstance(b, (T.ArrayType, T.StructType)):
             self.w(f"init_{self.ctype(b)}(&{lv});")
@@ -359,6 +370,7 @@ class Gen:
         self.w(f"{self.ctype(fs.ret)} RESULT__;")
         for v in fs.scope.params():
             self.w(f"(void){cid(v.name)};")
+        self.w("*ENO__ = 1;")
         self.emit_init("RESULT__", fs.ret, None)
         for v in fs.scope.vars.values():
             if v.section in ("VAR", "VAR_TEMP"):
@@ -512,9 +524,6 @@ class Gen:
         en = next((a for a in c.args if a.name == "EN" and not a.output), None)
         eno = next((a for a in c.args if a.name == "ENO" and a.output), None)
         w = self.w
-        if en is not None:
-            w(f"if ({self.ex(en.value)}) {{")
-            self.ind += 1
         inouts = []
         for a in c.args:
             p = getattr(a, "param", None)
@@ -525,8 +534,19 @@ class Gen:
             elif p.section == "VAR_IN_OUT":
                 w(f"{inst}.{cid(p.name)} = {self.lv(a.value)};")
                 inouts.append((a, p))
-        w(f"P_{pt.name}_body(&{inst});")
-        w(f"{inst}.ENO = 1;")
+        # As MATIEC: inputs are copied in and `=>` outputs out even when EN is FALSE;
+        # EN only decides whether the body runs.  The body may clear ENO itself.
+        if en is not None:
+            w(f"{inst}.EN = {self.ex(en.value)};")
+            w(f"if ({inst}.EN) {{")
+            w(f"    {inst}.ENO = 1;")
+            w(f"    P_{pt.name}_body(&{inst});")
+            w("} else {")
+            w(f"    {inst}.ENO = 0;")
+            w("}")
+        else:
+            w(f"{inst}.ENO = 1;")
+            w(f"P_{pt.name}_body(&{inst});")
         for a, p in inouts:
             w(f"{self.lv(a.value)} = {inst}.{cid(p.name)};")
         for a in c.args:
@@ -538,14 +558,7 @@ class Gen:
                 val = f"(!{val})"
             w(f"{self.lv(a.value)} = {val};")
         if eno is not None and eno.value is not None:
-            w(f"{self.lv(eno.value)} = 1;")
-        if en is not None:
-            self.ind -= 1
-            w("} else {")
-            w(f"    {inst}.ENO = 0;")
-            if eno is not None and eno.value is not None:
-                w(f"    {self.lv(eno.value)} = 0;")
-            w("}")
+            w(f"{self.lv(eno.value)} = {inst}.ENO;")
 
     # -------------------------------------------------------------- expressions --
     def var_ref(self, sym: VarSym) -> str:
@@ -620,6 +633,10 @@ class Gen:
             return str(et.values.index(v))
         if sym == "CURRENT_TIME":
             return "plc_clock"
+        if sym == "ENO":
+            return "(*ENO__)" if self.fn is not None else "self->ENO"
+        if sym == "EN":
+            return "((uint8_t)1)" if self.fn is not None else "self->EN"
         if isinstance(sym, FuncSym):
             return "RESULT__"
         if isinstance(sym, VarSym):
@@ -680,7 +697,7 @@ class Gen:
             cop = {"=": "==", "<>": "!="}.get(op, op)
             if T.is_elem(lt, "string") or isinstance(lt, T.StringType):
                 return f"(plc_str_cmp({self.ex(e.left)}, {self.ex(e.right)}) {cop} 0)"
-            return f"({self.ex(e.left)} {cop} {self.ex(e.right)})"
+            return c_compare(self.ex(e.left), cop, self.ex(e.right))
         t = T.resolve_base(e.ty)
         if isinstance(t, T.LiteralType):
             t = T.LINT if t.cat == "int" else T.LREAL
@@ -734,8 +751,9 @@ class Gen:
     # -------------------------------------------------------------------- calls --
     def x_Call(self, c: A.Call) -> str:
         tgt = c.target
+        eno = next((a for a in c.args if a.name == "ENO" and a.output and a.value is not None), None)
         if isinstance(tgt, FuncSym):
-            expr = self.user_call(c, tgt)
+            expr = self.user_call(c, tgt, f"&{self.lv(eno.value)}" if eno is not None else "&(uint8_t){1}")
         elif isinstance(tgt, tuple) and tgt[0] == "CONV":
             expr = self.conversion(c, tgt[1], tgt[2])
         elif isinstance(tgt, StdFunc):
@@ -743,7 +761,6 @@ class Gen:
         else:
             return "0"
         en = next((a for a in c.args if a.name == "EN" and not a.output), None)
-        eno = next((a for a in c.args if a.name == "ENO" and a.output and a.value is not None), None)
         if en is not None or eno is not None:
             ct = self.ctype(c.ty)
             cond = self.ex(en.value) if en is not None else "1"
@@ -757,7 +774,7 @@ class Gen:
             expr = f"plc_assert_done({expr}, {c.site}, {ctx})"
         return expr
 
-    def user_call(self, c: A.Call, fs: FuncSym) -> str:
+    def user_call(self, c: A.Call, fs: FuncSym, eno_ptr: str) -> str:
         by_name = {a.name: a for a in c.args if a.name not in (None, "EN", "ENO")}
         args = []
         for p in fs.scope.params():
@@ -776,6 +793,7 @@ class Gen:
                     args.append(f"&{self.lv(a.value)}")
                 else:
                     args.append(f"&({ct}){{0}}")
+        args.append(eno_ptr)
         return f"U_{fs.name}({', '.join(args)})"
 
     def conversion(self, c: A.Call, src: T.Type, dst: T.Type) -> str:
@@ -799,8 +817,8 @@ class Gen:
                 return f"plc_str_hex((uint64_t)({x}), {s.bits})"
             if sc == "real":
                 return f"plc_str_{'real' if s.bits == 32 else 'lreal'}((double)({x}))"
-            if sc == "time":
-                return f"plc_str_time({x})"
+            if sc in ("time", "date", "tod", "dt"):
+                return f"plc_str_{sc}({x})"
             return f"plc_str_i64((int64_t)({x}))"
         if sc == "string":
             if dcat == "bool":
@@ -902,8 +920,8 @@ class Gen:
         if n == "MUX":
             k = self.ex(args[0])
             ins = [val(a) for a in args[1:]]
-            expr = ins[-1]
-            for i in range(len(ins) - 2, -1, -1):
+            expr = self.default_value(t)          # selector out of range: 0, as MATIEC
+            for i in range(len(ins) - 1, -1, -1):
                 expr = f"(({k}) == {i} ? ({ins[i]}) : {expr})"
             return expr
         if n in ("SHL", "SHR", "ROL", "ROR"):
@@ -919,7 +937,7 @@ class Gen:
             at = T.resolve_base(args[0].ty)
             if T.is_elem(at, "string"):
                 return f"(plc_str_cmp({self.ex(args[0])}, {self.ex(args[1])}) {cop} 0)"
-            return f"({self.ex(args[0])} {cop} {self.ex(args[1])})"
+            return c_compare(self.ex(args[0]), cop, self.ex(args[1]))
         if n == "LEN":
             return f"plc_len({self.ex(args[0])})"
         if n in ("LEFT", "RIGHT"):

@@ -47,6 +47,10 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
+                if item.kind == "FUNCTION" and not item.blocks:
+                    diags.portable(item.pos, f"FUNCTION {item.text} declares no variables: MATIEC does not "
+                                   "recognise it as a function", "declare at least one VAR_INPUT or VAR block",
+                                   code="portability.function-without-vars")
                 for d in item.decls():
                     var_name(d, prog, diags, lib)
             elif isinstance(item, A.TypeBlock):
