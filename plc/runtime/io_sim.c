@@ -1,15 +1,21 @@
 /*
  * io_sim.c - the simulated plant attached to the I/O image.
  *
- * Until the carousel model exists, the plant is a loop-back: at the start of
- * each scan every input takes the value its output had at the end of the
- * previous scan (%QXn.m -> %IXn.m, %QWn -> %IWn).  A real plant model
- * replaces sim_read_inputs/sim_write_outputs without touching the scan loop.
+ * The carousel, arm and collet are simulated by the ST plant models
+ * (FB_CarouselPlant and friends) inside the program, so that the same
+ * simulation also runs on a real OpenPLC for demos.  This layer tells the
+ * program to use them by raising the discrete input SIM_FLAG_BIT (%IX99.7,
+ * "SimulatedPlant" in modbus_map/map.toml).  Every other input is a loop-back
+ * of the outputs of the previous scan (%QXn.m -> %IXn.m, %QWn -> %IWn), which
+ * keeps simple programs testable without a plant.
  */
 #include <stdlib.h>
 #include <string.h>
 
 #include "runtime.h"
+
+/* %IX99.7: TRUE tells the program that its plant models stand in for the machine. */
+#define SIM_FLAG_BIT 799
 
 typedef struct sim_plant {
     plc_bool_t qx[MAP_BITS];
@@ -30,6 +36,7 @@ static void sim_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw[MA
 
     memcpy(ix, s->qx, sizeof s->qx);
     memcpy(iw, s->qw, sizeof s->qw);
+    ix[SIM_FLAG_BIT] = 1;
 }
 
 static void sim_write_outputs(void *state, const plc_bool_t qx[MAP_BITS], const uint16_t qw[MAP_WORDS])
@@ -47,7 +54,7 @@ static void sim_close(void *state)
 
 const io_layer_t io_sim_layer = {
     .name = "sim",
-    .description = "simulated plant (outputs looped back to inputs)",
+    .description = "simulated plant (the program's plant models, %IX99.7 set; other inputs loop back)",
     .open = sim_open,
     .read_inputs = sim_read_inputs,
     .write_outputs = sim_write_outputs,
