@@ -287,8 +287,7 @@ class Gen:
             self.w(f"{lv} = {self.conv_to(init, t)};")
 
     def p_type_init(self, t: T.Type):
-        from .sema import Analyzer
-        return Analyzer.type_inits.get(id(t)) if hasattr(Analyzer, "type_inits") else None
+        return self.p.type_inits.get(id(t))
 
     def array_init_values(self, lv: str, at: T.ArrayType, init: A.ArrayInit) -> None:
         flat = []
@@ -352,6 +351,7 @@ class Gen:
         self.scope = pt.scope
         self.w(f"static void P_{pt.name}_body(P_{pt.name} *self) {{")
         self.ind += 1
+        self.w("(void)self;                 /* a body may use only globals, or be empty */")
         for v in pt.scope.vars.values():
             if v.section == "VAR_TEMP":
                 self.emit_init(f"self->{cid(v.name)}", v.type, v.init)

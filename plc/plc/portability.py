@@ -14,7 +14,7 @@ from . import ast as A
 from .diagnostics import Diagnostics
 from .lexer import KEYWORDS
 from .stdfuncs import STD_FUNCS, conversion
-from .types import ELEMENTARY, GENERIC
+from .types import ELEMENTARY, GENERIC, EnumType, StructType
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -47,6 +47,7 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
+                statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
                 if item.kind == "FUNCTION" and not item.blocks:
                     diags.portable(item.pos, f"FUNCTION {item.text} declares no variables: MATIEC does not "
                                    "recognise it as a function", "declare at least one VAR_INPUT or VAR block",
@@ -56,6 +57,19 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
             elif isinstance(item, A.TypeBlock):
                 for td in item.decls:
                     pou_name(td.name, td.text, td.pos, "TYPE", lib, diags)
+                    target = prog.types.get(td.spec.name) if isinstance(td.spec, A.TypeRef) else None
+                    if isinstance(target, (EnumType, StructType)):
+                        kind = "an enumeration" if isinstance(target, EnumType) else "a STRUCT"
+                        diags.portable(td.pos, f"TYPE {td.text} renames {kind} ({td.spec.text or td.spec.name}): "
+                                       "MATIEC's C output does not compile", f"use {td.spec.text or td.spec.name} itself",
+                                       code="portability.type-alias")
+                    if isinstance(td.spec, A.EnumSpec):
+                        for k, (v, pos, _x) in enumerate(td.spec.values):
+                            text = td.spec.texts[k] if k < len(td.spec.texts) else v
+                            clash = name_clash(v, prog, lib)
+                            if ident_shape(v, text, pos, diags) and clash:
+                                diags.portable(pos, f"enumeration value '{text}' is {clash}: MATIEC rejects it",
+                                               "choose another name", code="portability.enum-value-name")
                     if isinstance(td.spec, A.StructSpec):
                         for m in td.spec.members:
                             ident_shape(m.name, m.text, m.pos, diags)
@@ -68,6 +82,28 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                     for b in r.globals:
                         for d in b.decls:
                             var_name(d, prog, diags, lib)
+
+
+def statement_lists(body: list[A.Stmt], pos, where: str, diags: Diagnostics) -> None:
+    """MATIEC rejects an empty statement list (a POU body, THEN, ELSE, DO, a CASE arm) and a stray ';'."""
+    if not any(not isinstance(s, A.Empty) for s in body):
+        diags.portable(pos, f"no statement in {where}: MATIEC rejects an empty statement list",
+                       "put at least one statement there", code="portability.empty-body")
+    for s in body:
+        if isinstance(s, A.Empty):
+            diags.portable(s.pos, "an empty statement ';' is rejected by MATIEC", code="portability.empty-statement")
+        elif isinstance(s, A.If):
+            for k, (_c, b) in enumerate(s.branches):
+                statement_lists(b, s.pos, "the IF branch" if k == 0 else "an ELSIF branch", diags)
+            if s.orelse is not None:
+                statement_lists(s.orelse, s.pos, "the ELSE of this IF", diags)
+        elif isinstance(s, A.Case):
+            for labels, b in s.arms:
+                statement_lists(b, labels[0].pos if labels else s.pos, "this CASE branch", diags)
+            if s.orelse is not None:
+                statement_lists(s.orelse, s.pos, "the ELSE of this CASE", diags)
+        elif isinstance(s, (A.For, A.While, A.Repeat)):
+            statement_lists(s.body, s.pos, f"this {type(s).__name__.upper()} loop", diags)
 
 
 def ident_shape(name: str, text: str, pos, diags: Diagnostics) -> bool:
@@ -89,22 +125,35 @@ def pou_name(name: str, text: str, pos, what: str, lib, diags: Diagnostics) -> N
                        "rename it, e.g. with a prefix FB_, F_, E_ or ST_", code="portability.library-name")
 
 
+def name_clash(name: str, prog, lib) -> str | None:
+    """Why MATIEC refuses `name` for a variable or an enumeration value (None: it takes it)."""
+    if name in set(prog.types) | set(prog.pous) | set(ELEMENTARY):
+        return "named like a type"
+    if name in KEYWORDS or name in MATIEC_RESERVED or name in GENERIC:
+        return "a keyword to MATIEC"
+    if name in STD_FUNCS or conversion(name) is not None:
+        return "named like a standard function"
+    if name in lib and name in LIBRARY_BLOCKS:
+        return "named like a function block of OpenPLC's library"
+    return None
+
+
 def var_name(d: A.VarDecl, prog, diags: Diagnostics, lib) -> None:
     name = d.name
     if not ident_shape(name, d.text, d.pos, diags):
         return
-    types = set(prog.types) | set(prog.pous) | set(ELEMENTARY)
-    if name in types:
+    clash = name_clash(name, prog, lib)
+    if clash == "named like a type":
         same = name == getattr(d.spec, "name", None)
         diags.portable(d.pos, f"variable '{d.text}' is named like a type"
                        + (" (differing only in case)" if same else ""),
                        "choose another name", code="portability.var-type-name")
-    elif name in KEYWORDS or name in MATIEC_RESERVED or name in GENERIC:
+    elif clash == "a keyword to MATIEC":
         diags.portable(d.pos, f"variable '{d.text}' is a keyword to MATIEC", code="portability.var-keyword")
-    elif name in STD_FUNCS or conversion(name) is not None:
+    elif clash == "named like a standard function":
         diags.portable(d.pos, f"variable '{d.text}' is named like a standard function",
                        code="portability.var-std-name")
-    elif name in lib and name in LIBRARY_BLOCKS:
+    elif clash:
         diags.portable(d.pos, f"variable '{d.text}' is named like a function block of OpenPLC's library",
                        code="portability.var-library-block")
 

@@ -81,6 +81,7 @@ class Program:
     pous: dict[str, T.PouType] = field(default_factory=dict)      # FBs and PROGRAMs
     funcs: dict[str, FuncSym] = field(default_factory=dict)
     enum_values: dict[str, list[T.EnumType]] = field(default_factory=dict)
+    type_inits: dict[int, object] = field(default_factory=dict)   # id(type) -> TYPE-level initial value
     configs: list[ConfigInfo] = field(default_factory=list)
     sites: list[Site] = field(default_factory=list)
     array_types: list[T.ArrayType] = field(default_factory=list)
@@ -196,17 +197,29 @@ class Analyzer:
                 self.err(td.pos, "a STRUCT type takes initial values per member, not for the whole type")
             else:
                 self.check_init(td.init, t)
-                t = self.with_default(t, td.init)
+                if not isinstance(td.spec, A.TypeRef):
+                    t = self.with_default(t, td.init)
+                # an alias (TYPE Speed : INT := 5) shares its type object: the initial
+                # value belongs to the name and is applied where the name is used (alias_init)
         self.prog.types[name] = t
         self.prog.type_order.append(name)
         return t
 
+    def alias_init(self, spec):
+        """Initial value a declaration of type `spec` inherits from a TYPE alias chain, if any."""
+        seen = set()
+        while isinstance(spec, A.TypeRef) and spec.name in self.type_decls and spec.name not in seen:
+            seen.add(spec.name)
+            td = self.type_decls[spec.name]
+            if td.init is not None:
+                return td.init if isinstance(td.spec, A.TypeRef) else None
+            spec = td.spec
+        return None
+
     def with_default(self, t: T.Type, init) -> T.Type:
         """Types declared with an initial value keep it (TYPE Speed : INT := 5; END_TYPE)."""
-        self.type_inits[id(t)] = init
+        self.prog.type_inits[id(t)] = init
         return t
-
-    type_inits: dict[int, object] = {}
 
     def type_ref(self, ref: A.TypeRef) -> T.Type:
         name = ref.name
@@ -284,7 +297,9 @@ class Analyzer:
             dims = []
             for lo_e, hi_e in spec.dims:
                 for e in (lo_e, hi_e):
-                    if isinstance(e, A.Name) or (isinstance(e, A.Unary) and isinstance(e.operand, A.Name)):
+                    n = e if isinstance(e, A.Name) else e.operand if isinstance(e, A.Unary) else None
+                    if isinstance(n, A.Name) and not self.is_external_constant(n.name):
+                        # (a VAR_GLOBAL CONSTANT reached through VAR_EXTERNAL CONSTANT is fine with iec2c -a)
                         self.port(e.pos, "a named constant as an array bound is not accepted by MATIEC",
                                   "write the bound as a literal", code="portability.array-bound")
                 lo, hi = self.const_int(lo_e), self.const_int(hi_e)
@@ -331,7 +346,8 @@ class Analyzer:
                     mt = T.ERROR
                 if m.init is not None and not isinstance(mt, T.ErrorType):
                     self.check_init(m.init, mt)
-                st.members[m.name] = T.StructMemberT(m.name, mt, m.init, m.pos)
+                st.members[m.name] = T.StructMemberT(m.name, mt, m.init if m.init is not None
+                                                     else self.alias_init(m.spec), m.pos)
             return st
         if isinstance(spec, A.PointerSpec):
             self.err(spec.pos, f"{spec.kind} is not supported (MATIEC has no usable pointers)",
@@ -354,6 +370,8 @@ class Analyzer:
             sym = getattr(e, "sym", None) or self.lookup_const(e.name)
             if isinstance(sym, VarSym) and sym.constant and sym.const_value is not None:
                 return sym.const_value
+            if isinstance(sym, VarSym) and sym.constant and sym.section == "VAR_EXTERNAL":
+                return self.global_constant(e.name)
             return None
         if isinstance(e, A.Unary):
             v = self.const_value(e.operand)
@@ -388,6 +406,28 @@ class Analyzer:
     def const_int(self, e: A.Expr) -> int | None:
         v = self.const_value(e)
         return v if isinstance(v, int) and not isinstance(v, bool) else None
+
+    def is_external_constant(self, name: str) -> bool:
+        sym = self.lookup_const(name)
+        return isinstance(sym, VarSym) and sym.constant and sym.section == "VAR_EXTERNAL"
+
+    def global_constant(self, name: str):
+        """Value of the VAR_GLOBAL CONSTANT `name`, read from its declaration: a VAR_EXTERNAL CONSTANT
+        may bound an array before the configuration itself has been analysed."""
+        busy = self.__dict__.setdefault("_globals_in_progress", set())
+        if name in busy:
+            return None
+        busy.add(name)
+        try:
+            for f in self.files:
+                for cfg in (i for i in f.items if isinstance(i, A.Configuration)):
+                    for b in [*cfg.globals, *(b for r in cfg.resources for b in r.globals)]:
+                        for d in b.decls if b.constant else []:
+                            if d.name == name and isinstance(d.init, A.Expr):
+                                return self.const_value(d.init)
+            return None
+        finally:
+            busy.discard(name)
 
     def lookup_const(self, name: str):
         scope = getattr(self, "scope", None)
@@ -454,6 +494,10 @@ class Analyzer:
             self.err(d.pos, f"'{d.text}' is the name of the FUNCTION itself (its result)")
             return None
         t = self.type_spec(d.spec)
+        if isinstance(d.spec, A.SubrangeSpec) and isinstance(t, T.SubrangeType) and d.init is None and t.lo != 0 \
+                and d.section not in ("VAR_IN_OUT", "VAR_EXTERNAL"):
+            self.port(d.pos, f"MATIEC starts an inline subrange variable at 0, not at its lower bound {t.lo}",
+                      "give it an initial value, or declare the subrange as a TYPE", code="portability.subrange-default")
         if isinstance(t, T.PouType) and d.section == "VAR_GLOBAL":
             self.port(d.pos, "function block instances in VAR_GLOBAL break OpenPLC's C build",
                       "declare the instance in the PROGRAM", code="portability.global-fb")
@@ -481,7 +525,10 @@ class Analyzer:
                 self.check_init(d.init, t)
         if block.constant and d.init is None and d.section != "VAR_EXTERNAL":
             self.err(d.pos, f"CONSTANT '{d.text}' needs an initial value")
-        sym = VarSym(d.name, d.text, t, d.section, d.pos, d, block.constant, block.retain, d.location, d.init,
+        init = d.init
+        if init is None and d.section not in ("VAR_IN_OUT", "VAR_EXTERNAL"):
+            init = self.alias_init(d.spec)
+        sym = VarSym(d.name, d.text, t, d.section, d.pos, d, block.constant, block.retain, d.location, init,
                      owner=pou.name if pou else "")
         if block.constant and d.init is not None and isinstance(d.init, A.Expr):
             sym.const_value = self.const_value(d.init)
@@ -1517,5 +1564,4 @@ def analyze(files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[st
     a.func = None
     a.scope = None
     a.loop = LoopCtx()
-    a.type_inits = {}
     return a.run()

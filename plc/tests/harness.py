@@ -187,7 +187,7 @@ class ScanRun:
     def path(self, name: str) -> str:
         """Full upper-case path of `Program.var...` (or of a full CONFIG0... path)."""
         up = name.upper()
-        if up.startswith("CONFIG0."):
+        if up in self.var_table or up in self.located or (self.scans and up in self.scans[-1]):
             return up
         head, _, rest = up.partition(".")
         if head in self.instances:
