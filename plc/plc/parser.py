@@ -33,6 +33,7 @@ VAR_SECTIONS = ("VAR", "VAR_INPUT", "VAR_OUTPUT", "VAR_IN_OUT", "VAR_EXTERNAL", 
 STMT_END = ("END_IF", "ELSIF", "ELSE", "END_CASE", "END_FOR", "END_WHILE", "UNTIL", "END_REPEAT",
             "END_FUNCTION", "END_FUNCTION_BLOCK", "END_PROGRAM")
 TOP_KEYWORDS = ("FUNCTION", "FUNCTION_BLOCK", "PROGRAM", "CONFIGURATION", "TYPE", "VAR_GLOBAL")
+POU_ENDS = ("END_FUNCTION", "END_FUNCTION_BLOCK", "END_PROGRAM", "END_CONFIGURATION", "END_RESOURCE", "END_TYPE")
 
 
 class ParseError(Exception):
@@ -111,8 +112,8 @@ class Parser:
                 return
             if self.tok.kind == "KEYWORD" and (self.tok.value in stops or self.tok.value in TOP_KEYWORDS
                                                or self.tok.value.startswith("END_")):
-                if self.k == start and self.tok.value not in TOP_KEYWORDS:
-                    self.next()
+                if self.k == start and self.tok.value not in TOP_KEYWORDS and self.tok.value not in POU_ENDS:
+                    self.next()         # (never swallow the END_PROGRAM/... that closes the enclosing POU)
                 return
             self.next()
 

@@ -47,7 +47,8 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
-                statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
+                if not errors_inside(item, diags):   # a syntax error may have emptied a statement list
+                    statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
                 if item.kind == "FUNCTION" and not item.blocks:
                     diags.portable(item.pos, f"FUNCTION {item.text} declares no variables: MATIEC does not "
                                    "recognise it as a function", "declare at least one VAR_INPUT or VAR block",
@@ -82,6 +83,12 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                     for b in r.globals:
                         for d in b.decls:
                             var_name(d, prog, diags, lib)
+
+
+def errors_inside(pou: A.Pou, diags: Diagnostics) -> bool:
+    last = pou.end_pos.line if pou.end_pos is not None else 1 << 30
+    return any(d.severity == "error" and d.pos.file == pou.pos.file and pou.pos.line <= d.pos.line <= last
+               for d in diags.items)
 
 
 def statement_lists(body: list[A.Stmt], pos, where: str, diags: Diagnostics) -> None:

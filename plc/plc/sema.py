@@ -111,6 +111,7 @@ class Analyzer:
         self.current_pou: A.Pou | None = None
         self.test_build = test_build
         self.global_scope: dict[str, VarSym] = {}
+        self.locations: dict[tuple, A.VarDecl] = {}      # (area, size, address parts) -> first declaration
 
     # ================================================================ helpers ==
     def err(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
@@ -537,6 +538,11 @@ class Analyzer:
 
     def check_location(self, d: A.VarDecl, t: T.Type, pou: A.Pou | None) -> None:
         loc = d.location
+        key = (loc.area, loc.size, tuple(loc.parts))
+        first = self.locations.setdefault(key, d)
+        if first is not d:
+            self.err(loc.pos, f"{loc.text} is already the location of '{first.text}'",
+                     f"declared at {first.pos}; one address, one variable", code="located-duplicate")
         if pou is not None and pou.kind == "FUNCTION_BLOCK":
             self.err(loc.pos, "located variables are not allowed inside a FUNCTION_BLOCK (iec2c crashes on them)",
                      "locate variables in the PROGRAM or in VAR_GLOBAL", code="located-in-fb")
@@ -796,10 +802,10 @@ class Analyzer:
                 inst_t = T.resolve_base(root.base.ty)
                 member = inst_t.scope.lookup(root.name) if inst_t.scope else None
                 if member is not None and member.section in ("VAR_OUTPUT",):
-                    self.err(root.pos, f"cannot {verb} output '{root.name}' of an instance from outside",
+                    self.err(root.pos, f"cannot {verb} output '{root.text or root.name}' of an instance from outside",
                              "outputs are written by the function block itself")
                 elif member is not None and member.section in ("VAR", "VAR_TEMP", "VAR_EXTERNAL"):
-                    self.err(root.pos, f"'{root.name}' is internal to {inst_t.name} and cannot be written from outside")
+                    self.err(root.pos, f"'{root.text or root.name}' is internal to {inst_t.name} and cannot be written from outside")
                 path_through_instance = True
             root = root.base
         if isinstance(root, A.Direct):

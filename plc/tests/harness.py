@@ -22,13 +22,18 @@ import os
 import re
 import struct
 import subprocess
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plc.driver import INCLUDE, compile_sources
-
 HERE = Path(__file__).resolve().parent
+# Import the compiler from this checkout even when pytest runs from the repository root, where
+# the project folder plc/ would otherwise shadow the package plc/plc/ as a namespace package.
+if str(HERE.parent) not in sys.path:
+    sys.path.insert(0, str(HERE.parent))
+
+from plc.driver import INCLUDE, compile_sources  # noqa: E402
 DRIVER_C = HERE / "scan_driver.c"
 SAN = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", *SAN]

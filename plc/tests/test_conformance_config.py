@@ -29,9 +29,6 @@ VAR_EXTERNAL
     trace : DINT;
     fastRuns : INT;
 END_VAR
-VAR
-    clockSeen : TIME;
-END_VAR
 fastRuns := fastRuns + 1;
 trace := trace * 10 + 1;
 END_PROGRAM

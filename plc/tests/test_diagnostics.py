@@ -1,0 +1,416 @@
+"""Diagnostics: one test per semantic check, syntax error and portability warning; exit codes of plc.
+
+Every check asserts the file:line:col the diagnostic points at and its message.
+Semantic checks follow MATIEC's strictness (issue 2, item 4); portability
+warnings flag what OpenPLC's iec2c rejects or runs differently (item 5).
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from harness import compile_st
+from plc.cli import main as plc_main
+
+PLC = Path(sys.executable).with_name("plc")
+
+
+def diags(src: str, name: str = "t.st", portability: bool = True, target: str | None = None):
+    res = compile_st(src, name=name, generate=False, portability=portability, target=target)
+    return res, [(d.severity, d.pos.file, d.pos.line, d.pos.col, d.message, d.code) for d in res.diags.sorted()]
+
+
+def errors(src: str, **kw):
+    return [(ln, col, msg) for sev, _f, ln, col, msg, _c in diags(src, portability=False, **kw)[1] if sev == "error"]
+
+
+def one_error(src: str) -> tuple[int, int, str]:
+    errs = errors(src)
+    assert len(errs) == 1, errs
+    return errs[0]
+
+
+def warnings(src: str, **kw):
+    return [(ln, col, msg, code) for sev, _f, ln, col, msg, code in diags(src, **kw)[1] if sev == "warning"]
+
+
+def prog(decls: str, body: str, name: str = "Main") -> str:
+    """A PROGRAM with the given declarations (line 2 on) and body."""
+    return f"PROGRAM {name}\n{decls}\n{body}\nEND_PROGRAM\n"
+
+
+# =================================================================== semantic errors
+
+def test_undeclared_variable():
+    assert one_error(prog("VAR a : INT; END_VAR", "a := missing + 1;")) == (3, 6, "undeclared variable 'missing'")
+
+
+def test_duplicate_variable_differing_only_in_case():
+    ln, col, msg = one_error(prog("VAR speed : INT; Speed : INT; END_VAR", "speed := 1;"))
+    assert (ln, col, msg) == (2, 18, "duplicate variable 'Speed'")
+
+
+def test_duplicate_pou_name_differing_only_in_case():
+    src = ("FUNCTION_BLOCK FB_Axis\nVAR x : INT; END_VAR\nx := 1;\nEND_FUNCTION_BLOCK\n"
+           "FUNCTION_BLOCK fb_axis\nVAR y : INT; END_VAR\ny := 1;\nEND_FUNCTION_BLOCK\n")
+    assert one_error(src) == (5, 1, "duplicate POU name 'fb_axis'")
+
+
+def test_int_into_dint_needs_an_explicit_conversion():
+    ln, col, msg = one_error(prog("VAR i : INT; d : DINT; END_VAR", "d := i;"))
+    assert (ln, col) == (3, 6)
+    assert "implicit conversion from INT to DINT" in msg
+    res, _ = diags(prog("VAR i : INT; d : DINT; END_VAR", "d := i;"))
+    assert "INT_TO_DINT" in res.diags.errors[0].hint
+    assert errors(prog("VAR i : INT; d : DINT; END_VAR", "d := INT_TO_DINT(i);")) == []
+
+
+def test_arithmetic_on_a_bit_string_is_rejected():
+    assert one_error(prog("VAR w : WORD; END_VAR", "w := w + 1;")) == \
+        (3, 8, "arithmetic '+' on WORD (a bit string) is not allowed")
+    assert errors(prog("VAR w : WORD; END_VAR", "w := w AND 16#FF;")) == []
+
+
+def test_literal_out_of_range_for_int():
+    assert one_error(prog("VAR i : INT; END_VAR", "i := 40000;")) == \
+        (3, 6, "literal 40000 is out of range for INT (-32768..32767)")
+    assert errors(prog("VAR i : INT; END_VAR", "i := 32767;")) == []
+
+
+def test_assignment_to_an_input_inside_its_function_block():
+    src = "FUNCTION_BLOCK FB_A\nVAR_INPUT go : BOOL; END_VAR\ngo := FALSE;\nEND_FUNCTION_BLOCK\n"
+    assert one_error(src) == (3, 1, "cannot assign to input 'go' inside its own function block")
+
+
+def test_assignment_to_a_constant():
+    assert one_error(prog("VAR CONSTANT k : INT := 3; END_VAR", "k := 4;")) == (3, 1, "cannot assign to CONSTANT 'k'")
+
+
+def test_assignment_to_an_fb_output_from_outside():
+    src = ("FUNCTION_BLOCK FB_A\nVAR_OUTPUT done : BOOL; END_VAR\ndone := TRUE;\nEND_FUNCTION_BLOCK\n"
+           + prog("VAR a : FB_A; END_VAR", "a.done := FALSE;", "P_Main"))
+    assert one_error(src) == (7, 3, "cannot assign to output 'done' of an instance from outside")
+
+
+def test_assignment_to_the_for_variable_inside_its_loop():
+    src = prog("VAR i : INT; END_VAR", "FOR i := 1 TO 3 DO\n    i := 5;\nEND_FOR;")
+    assert one_error(src) == (4, 5, "cannot assign to the FOR control variable 'i' inside its loop")
+
+
+F_ADD = "FUNCTION F_Add : INT\nVAR_INPUT a : INT; b : INT; END_VAR\nF_Add := a + b;\nEND_FUNCTION\n"
+
+
+def test_unknown_parameter_name():
+    assert one_error(F_ADD + prog("VAR x : INT; END_VAR", "x := F_Add(a := 1, c := 2);")) == \
+        (7, 20, "F_Add has no parameter 'c'")
+
+
+def test_too_many_positional_arguments():
+    assert one_error(F_ADD + prog("VAR x : INT; END_VAR", "x := F_Add(1, 2, 3);")) == \
+        (7, 18, "too many arguments for F_Add (it has 2 inputs)")
+
+
+def test_function_block_call_must_connect_its_var_in_out():
+    src = ("FUNCTION_BLOCK FB_A\nVAR_IN_OUT v : INT; END_VAR\nv := v + 1;\nEND_FUNCTION_BLOCK\n"
+           + prog("VAR a : FB_A; END_VAR", "a();"))
+    assert one_error(src) == (7, 1, "call of a must connect VAR_IN_OUT 'v'")
+
+
+def test_output_passed_like_an_input():
+    src = ("FUNCTION_BLOCK FB_A\nVAR_OUTPUT q : BOOL; END_VAR\nq := TRUE;\nEND_FUNCTION_BLOCK\n"
+           + prog("VAR a : FB_A; END_VAR", "a(q := TRUE);"))
+    assert one_error(src) == (7, 3, "'q' is an output: write `q => variable`")
+
+
+def test_constant_array_index_out_of_bounds():
+    errs = errors(prog("VAR a : ARRAY[1..4] OF INT; END_VAR", "a[5] := 1;\na[0] := 2;\na[4] := 3;"))
+    assert errs == [(3, 3, "index 5 is out of bounds 1..4"), (4, 3, "index 0 is out of bounds 1..4")]
+
+
+def test_case_label_of_the_wrong_type():
+    src = prog("VAR i : INT; END_VAR", "CASE i OF\n    1: i := 2;\n    2.5: i := 3;\nEND_CASE;")
+    assert one_error(src) == (5, 5, "CASE label must be an integer constant")
+
+
+def test_case_label_of_another_enumeration():
+    src = ("TYPE E_A : (One, Two); E_B : (Red, Green); END_TYPE\n"
+           + prog("VAR a : E_A; i : INT; END_VAR", "CASE a OF\n    E_B#Red: i := 1;\nEND_CASE;"))
+    assert one_error(src) == (5, 5, "CASE label must be a value of E_A")
+
+
+def test_located_variable_size_must_match_its_type():
+    src = prog("VAR\n    x AT %IW0 : BOOL;\nEND_VAR", "")
+    assert one_error(src) == (3, 10, "%IW0 is a 16-bit location but 'x' is BOOL")
+
+
+def test_duplicate_locations_across_programs_and_globals():
+    src = (prog("VAR\n    a AT %QW3 : INT;\nEND_VAR", "a := 1;", "P_One")
+           + prog("VAR\n    b AT %QW3 : WORD;\n    c AT %QX0.1 : BOOL;\nEND_VAR", "b := 16#1;", "P_Two")
+           + "CONFIGURATION Config0\nVAR_GLOBAL\n    g AT %QX0.1 : BOOL;\n    h AT %QX0.2 : BOOL;\nEND_VAR\n"
+           "RESOURCE Res0 ON PLC\nTASK t(INTERVAL := T#4ms, PRIORITY := 0);\nPROGRAM p1 WITH t : P_One;\n"
+           "PROGRAM p2 WITH t : P_Two;\nEND_RESOURCE\nEND_CONFIGURATION\n")
+    errs = errors(src)
+    assert errs == [(9, 10, "%QW3 is already the location of 'a'"),
+                    (16, 10, "%QX0.1 is already the location of 'c'")]
+
+
+def test_located_variable_inside_a_function_block():
+    src = "FUNCTION_BLOCK FB_A\nVAR\n    x AT %QX0.0 : BOOL;\nEND_VAR\nx := TRUE;\nEND_FUNCTION_BLOCK\n"
+    ln, col, msg = one_error(src)
+    assert (ln, col) == (3, 10)
+    assert msg.startswith("located variables are not allowed inside a FUNCTION_BLOCK")
+
+
+def test_array_of_function_block_instances():
+    errs = errors(prog("VAR t : ARRAY[1..2] OF TON; x : INT; END_VAR", "x := 1;"))
+    assert errs == [(2, 9, "arrays of function block instances are not supported")]
+
+
+def test_function_block_instance_inside_a_struct():
+    src = "TYPE ST_A : STRUCT t : TON; n : INT; END_STRUCT; END_TYPE\n"
+    assert one_error(src) == (1, 20, "function block instances inside a STRUCT are not supported by MATIEC")
+
+
+def test_every_error_of_a_file_is_reported_in_one_run():
+    src = prog("VAR i : INT; d : DINT; w : WORD; END_VAR",
+               "d := i;\nw := w + 1;\ni := 40000;\nq := 1;\nCASE i OF 1.5: i := 0; END_CASE;")
+    errs = errors(src)
+    assert [(ln, col) for ln, col, _m in errs] == [(3, 6), (4, 8), (5, 6), (6, 1), (7, 11)]
+    assert len({m for _l, _c, m in errs}) == 5
+
+
+# ====================================================================== syntax errors
+
+def test_missing_end_if_names_the_opening_if():
+    src = prog("VAR x : INT; END_VAR", "IF x > 0 THEN\n    x := 1;")
+    assert errors(src) == [(5, 1, "expected END_IF to close IF opened at 3:1, found 'END_PROGRAM'")]
+
+
+def test_wrong_end_keyword_names_the_opening_loop():
+    src = prog("VAR x : INT; END_VAR", "FOR x := 1 TO 3 DO\n    x := 1;\nEND_WHILE;")
+    assert errors(src) == [(5, 1, "expected END_FOR to close FOR opened at 3:1, found 'END_WHILE'")]
+
+
+def test_missing_semicolon():
+    assert errors(prog("VAR x : INT; END_VAR", "x := 1\nx := 2;")) == [(4, 1, "expected ';' after the assignment, found 'x'")]
+
+
+def test_end_of_file_inside_a_loop():
+    src = "PROGRAM Main\nVAR x : INT; END_VAR\nWHILE x < 3 DO\n    x := x + 1;\n"
+    errs = errors(src)
+    assert errs[0] == (5, 1, "expected END_WHILE to close WHILE opened at 3:1, found end of file")
+
+
+def test_unterminated_comment_and_string():
+    res, ds = diags(prog("VAR x : INT; END_VAR", "(* never closed\nx := 1;"), portability=False)
+    assert ds[0][2:5] == (3, 1, "unterminated comment")
+    assert res.diags.errors[0].hint == "a '(*' comment needs a closing '*)'"
+    errs = errors(prog("VAR s : STRING; END_VAR", "s := 'abc;"))
+    assert errs[0] == (3, 6, "unterminated string literal")
+
+
+def test_missing_end_var():
+    errs = errors("PROGRAM Main\nVAR x : INT;\nx := 1;\nEND_PROGRAM\n")
+    assert (4, 1, "expected END_VAR to close VAR opened at 2:1") in errs
+
+
+# ================================================================ portability warnings
+
+def pw(src: str, **kw):
+    """Portability warnings (code, line, col) of `src`, which must have no error."""
+    res, ds = diags(src, **kw)
+    assert not res.diags.errors, [d.message for d in res.diags.errors]
+    quiet = diags(src, portability=False, **kw)[1]
+    assert not any(c and c.startswith("portability") for *_x, c in quiet), "--no-portability must silence them"
+    return [(code, ln, col) for sev, _f, ln, col, msg, code in ds if code and code.startswith("portability")]
+
+
+OK_DECLS = "VAR x : INT; w : WORD; b : BOOL; t : TIME; d : DINT; END_VAR"
+
+
+def test_clean_program_has_no_warning():
+    assert pw(prog(OK_DECLS, "x := 1;")) == []
+
+
+def test_pou_named_like_an_openplc_library_identifier():
+    assert pw("FUNCTION_BLOCK Busy\nVAR x : INT; END_VAR\nx := 1;\nEND_FUNCTION_BLOCK\n") == \
+        [("portability.library-name", 1, 1)]
+
+
+def test_type_named_like_an_openplc_library_identifier():
+    assert pw("TYPE State : (Idle, Running); END_TYPE\n") == [("portability.library-name", 1, 6)]
+
+
+def test_line_comment():
+    assert pw(prog(OK_DECLS, "x := 1; // set x")) == [("portability.comment", 3, 9)]
+
+
+def test_block_comment():
+    assert pw(prog(OK_DECLS, "/* set x */ x := 1;")) == [("portability.comment", 3, 1)]
+
+
+def test_enum_with_explicit_values():
+    assert pw("TYPE E_A : (One := 1, Two := 5); END_TYPE\n") == \
+        [("portability.enum-value", 1, 13), ("portability.enum-value", 1, 23)]
+
+
+def test_enum_value_named_like_a_standard_function_or_type():
+    assert pw("TYPE E_A : (Low, Mid, High, Ton); END_TYPE\n") == \
+        [("portability.enum-value-name", 1, 18), ("portability.enum-value-name", 1, 29)]
+
+
+def test_string_with_a_length():
+    assert pw(prog("VAR s : STRING[20]; END_VAR", "s := 'a';")) == [("portability.string-length", 2, 9)]
+
+
+def test_wstring():
+    res, ds = diags(prog("VAR s : STRING; END_VAR", 's := "a";'))
+    assert ("warning", 3, 6, "portability.wstring") in [(sev, ln, col, code) for sev, _f, ln, col, _m, code in ds]
+    assert one_error(prog("VAR s : WSTRING; END_VAR", "s := 'a';")) == (2, 9, "WSTRING is not supported by OpenPLC")
+
+
+def test_power_operator():
+    assert pw(prog("VAR r : REAL; END_VAR", "r := 2.0 ** 3.0;")) == [("portability.power", 3, 10)]
+
+
+def test_bit_access():
+    assert pw(prog(OK_DECLS, "b := w.3;")) == [("portability.bit-access", 3, 8)]
+
+
+def test_zero_argument_function_call():
+    src = "FUNCTION F_One : INT\nVAR k : INT; END_VAR\nF_One := 1;\nEND_FUNCTION\n" + prog(OK_DECLS, "x := F_One();")
+    assert pw(src) == [("portability.empty-call", 7, 6)]
+
+
+def test_time_to_dint_and_dint_to_time_count_seconds():
+    assert pw(prog(OK_DECLS, "d := TIME_TO_DINT(t);\nt := DINT_TO_TIME(d);")) == \
+        [("portability.time-conversion", 3, 6), ("portability.time-conversion", 4, 6)]
+
+
+CELL = ("CONFIGURATION Cell\nRESOURCE Cpu ON PLC\nTASK t0(INTERVAL := T#4ms, PRIORITY := 0);\n"
+        "PROGRAM i0 WITH t0 : Main;\nEND_RESOURCE\nEND_CONFIGURATION\n")
+
+
+def test_configuration_and_resource_names_for_openplc():
+    src = prog(OK_DECLS, "x := 1;") + CELL
+    assert pw(src, target="openplc") == [("portability.openplc-names", 5, 1), ("portability.openplc-names", 6, 1)]
+    assert pw(src) == []                                    # only with --target openplc
+    assert pw(src.replace("Cell", "Config0").replace("Cpu", "Res0"), target="openplc") == []
+
+
+def test_var_block_mixing_located_and_unlocated_variables():
+    assert pw(prog("VAR\n    out AT %QW0 : INT;\n    x : INT;\nEND_VAR", "x := 1;")) == \
+        [("portability.mixed-located", 2, 1)]
+
+
+def test_function_call_as_a_statement():
+    src = "FUNCTION F_One : INT\nVAR_INPUT k : INT; END_VAR\nF_One := k;\nEND_FUNCTION\n" + prog(OK_DECLS, "F_One(1);")
+    assert pw(src) == [("portability.call-statement", 7, 1)]
+
+
+def test_variable_named_like_a_type():
+    src = "TYPE E_Mode : (Idle, Moving); END_TYPE\n" + \
+        prog("VAR e_mode : INT; tOn : TON; timer1 : TON; END_VAR", "e_mode := 1;")
+    assert pw(src) == [("portability.var-type-name", 3, 5), ("portability.var-type-name", 3, 19)]
+
+
+def test_variable_named_like_a_keyword():
+    assert pw(prog("VAR en2 : INT; eno : INT; END_VAR", "en2 := 1;")) == [("portability.var-keyword", 2, 16)]
+
+
+def test_variable_named_like_a_standard_function():
+    assert pw(prog("VAR limit : INT; max : INT; END_VAR", "limit := 1;")) == \
+        [("portability.var-std-name", 2, 5), ("portability.var-std-name", 2, 18)]
+
+
+def test_identifier_with_double_or_trailing_underscore():
+    assert pw(prog("VAR a__b : INT; ab_ : INT; END_VAR", "a__b := 1;")) == \
+        [("portability.identifier", 2, 5), ("portability.identifier", 2, 17)]
+
+
+def test_empty_statement_lists_and_stray_semicolons():
+    assert pw(prog(OK_DECLS, "IF x > 0 THEN END_IF;\nx := 1;;")) == \
+        [("portability.empty-body", 3, 1), ("portability.empty-statement", 4, 8)]
+
+
+def test_function_without_any_variable():
+    src = "FUNCTION F_Seven : INT\nF_Seven := 7;\nEND_FUNCTION\n"
+    assert pw(src) == [("portability.function-without-vars", 1, 1)]
+
+
+def test_type_renaming_an_enumeration():
+    assert pw("TYPE E_A : (One, Two); T_B : E_A; END_TYPE\n") == [("portability.type-alias", 1, 24)]
+
+
+def test_inline_subrange_starts_at_0_in_matiec():
+    assert pw(prog("VAR p : INT (3..10); q : INT (0..10); END_VAR", "p := 4;")) == \
+        [("portability.subrange-default", 2, 5)]
+
+
+# ========================================================================= commands
+
+def write(tmp_path: Path, name: str, text: str) -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+GOOD = prog("VAR x : INT; END_VAR", "x := x + 1;") + \
+    ("CONFIGURATION Config0\nRESOURCE Res0 ON PLC\nTASK t0(INTERVAL := T#4ms, PRIORITY := 0);\n"
+     "PROGRAM i0 WITH t0 : Main;\nEND_RESOURCE\nEND_CONFIGURATION\n")
+WARN = prog("VAR x : INT; END_VAR", "x := 1; // comment")
+BAD = prog("VAR x : INT; END_VAR", "x := y;")
+
+
+def run_plc(*args, capsys) -> tuple[int, str]:
+    try:
+        rc = plc_main(list(args))
+    except SystemExit as e:           # argparse usage errors
+        rc = e.code
+    out = capsys.readouterr()
+    return rc, out.out + out.err
+
+
+def test_check_exit_codes_and_rendering(tmp_path, capsys):
+    good, warn, bad = write(tmp_path, "good.st", GOOD), write(tmp_path, "warn.st", WARN), write(tmp_path, "bad.st", BAD)
+    assert run_plc("check", str(good), capsys=capsys)[0] == 0
+    rc, text = run_plc("check", str(warn), capsys=capsys)
+    assert rc == 0 and "warning: portability: '//' comments" in text
+    rc, text = run_plc("check", "--no-portability", str(warn), capsys=capsys)
+    assert rc == 0 and "warning" not in text.split("checked")[0]
+    rc, text = run_plc("check", str(bad), capsys=capsys)
+    assert rc == 1
+    lines = text.splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.endswith("3:6: error: undeclared variable 'y'"))
+    assert lines[k + 1] == "    x := y;"
+    assert lines[k + 2] == "         ^"
+    assert "Traceback" not in text
+
+
+def test_usage_errors_exit_2(tmp_path, capsys):
+    assert run_plc("check", str(tmp_path / "missing.st"), capsys=capsys)[0] == 2
+    assert run_plc("check", capsys=capsys)[0] == 2
+    assert run_plc("build", str(write(tmp_path, "g.st", GOOD)), capsys=capsys)[0] == 2      # --out missing
+    assert run_plc("frobnicate", capsys=capsys)[0] == 2
+
+
+def test_build_writes_c_and_object(tmp_path, capsys):
+    src = write(tmp_path, "good.st", GOOD)
+    out = tmp_path / "out"
+    rc, text = run_plc("build", str(src), "--out", str(out), capsys=capsys)
+    assert rc == 0, text
+    assert (out / "program.c").read_text().count("plc_program") >= 1
+    assert (out / "program.o").stat().st_size > 0
+    rc, text = run_plc("build", str(write(tmp_path, "bad.st", BAD)), "--out", str(tmp_path / "o2"), capsys=capsys)
+    assert rc == 1 and not (tmp_path / "o2" / "program.c").exists()
+
+
+def test_installed_command_help_and_no_traceback_on_garbage(tmp_path):
+    garbage = write(tmp_path, "garbage.st", "\x00\xff PROGRAM (* END_IF ;;; := := 16#ZZ 'unterminated")
+    for args in (["check", "--help"], ["build", "--help"], ["check", str(garbage)]):
+        proc = subprocess.run([str(PLC), *args], capture_output=True, text=True, timeout=60)
+        assert "Traceback" not in proc.stderr
+        assert proc.returncode == (0 if "--help" in args else 1), proc.stderr
