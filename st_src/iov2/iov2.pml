@@ -139,7 +139,7 @@ bit  owedPrep, owedStart, owedChange;
 byte tState = T_IDLE;
 byte faultReport = F_QUIET;
 bit  prepareSeen, changeSeen, changerFaultSeen, hostFaultedSeen;
-byte pendingTool, changeSeenTool, changeTool;
+byte pendingTool, changeSeenTool, changeTool, prepTool;
 bit  prepareAcked, startAcked, changeAcked, abortAcked, reportPending;
 bit  faulted, prepValid;
 byte faultReason, toolInSpindle, preppedTool;
@@ -182,7 +182,7 @@ bit  hostDirty = 1, plcDirty = 1;
 #define PLC_PACK (tState + 8*(faultReport + 4*(prepareSeen + 2*(changeSeen + 2*(changerFaultSeen + \
     2*(hostFaultedSeen + 2*(pendingTool + 4*(changeSeenTool + 4*(changeTool + 4*(prepareAcked + \
     2*(startAcked + 2*(changeAcked + 2*(abortAcked + 2*(reportPending + 2*(faulted + 2*(prepValid + \
-    2*(faultReason + 4*(toolInSpindle + 4*(preppedTool)))))))))))))))))))
+    2*(faultReason + 4*(toolInSpindle + 4*(preppedTool + 4*prepTool)))))))))))))))))))
 #define PLC_PACK2 (pendingPrepId + 2*(startSeenId + 2*(changeSeenId + 2*(abortSeenId + 2*(reportId + \
     2*(startSeen + 2*(abortSeen + 2*(cmdPrepare + 2*(cmdStart + 2*(cmdChange + 2*(prepActive + \
     2*(startActive + 2*(changeActive + 2*(coasting + 2*(prepDone + 2*(startDone + 2*(changeDone + \
@@ -326,7 +326,11 @@ inline host_scan() {
 
 inline plc_scan() {
     /* latch on first sight */
-    if :: dPrep && !prepareSeen -> pendingTool = dPrepTool; pendingPrepId = dPrepId :: else -> skip fi;
+    if
+    :: dPrep && (!prepareSeen || (!prepareAcked && dPrepTool != pendingTool)) ->
+        pendingTool = dPrepTool; pendingPrepId = dPrepId
+    :: else -> skip
+    fi;
     if :: dChange && !changeSeen -> changeSeenTool = dPrepTool; changeSeenId = dChangeId :: else -> skip fi;
     if :: dStart && !startSeen -> startSeenId = dStartId :: else -> skip fi;
     if :: dAbort && !abortSeen -> abortSeenId = dAbortId :: else -> skip fi;
@@ -398,14 +402,16 @@ inline plc_scan() {
             if :: faulted -> tState = T_REFU :: else -> tState = T_CHG fi                  /* 2, 3 */
         :: !ABORT_NEW && !(dChange && !changeAcked) && dStart && !startAcked -> tState = T_START /* 4 */
         :: !ABORT_NEW && !(dChange && !changeAcked) && !(dStart && !startAcked) && dPrep && !prepareAcked ->
-            tState = T_PREP                                                                 /* 5 */
+            prepTool = pendingTool; tState = T_PREP                                         /* 5 */
         :: else -> skip
         fi
     :: tState == T_PREP ->
         if
         :: ABORT_NEW -> tState = T_STOP                                                     /* 6 */
         :: !ABORT_NEW && !dPrep -> tState = T_CANC                                          /* 7 */
-        :: !ABORT_NEW && dPrep && (faulted || prepDone) -> prepareAcked = 1; tState = T_IDLE /* 8, 9 */
+        :: !ABORT_NEW && dPrep && prepTool != pendingTool -> tState = T_CANC                /* 27 */
+        :: !ABORT_NEW && dPrep && prepTool == pendingTool && (faulted || prepDone) ->
+            prepareAcked = 1; tState = T_IDLE                                               /* 8, 9 */
         :: else -> skip
         fi
     :: tState == T_START ->
