@@ -52,6 +52,12 @@ def cmd_run(args) -> int:
     paths = args.paths or ([str(root / "st_src")] if root else [])
     if not paths:
         raise UserError("no ST sources given and no project st_src/ found from here")
+    if root is not None and not args.paths:
+        from . import machine
+        cfg = root / machine.DEFAULT_CONFIG
+        if cfg.exists() and machine.check_and_generate(cfg, root / machine.DEFAULT_OUT, write=False) != 0:
+            print("plc run: fix the machine configuration first (plc machine check / generate)", file=sys.stderr)
+            return 1
     res = compile_sources(paths, portability=False)
     print_diagnostics(res, quiet=True)
     if not res.ok:
@@ -92,6 +98,8 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_build)
     from . import testrunner
     testrunner.add_parser(sub)
+    from . import machine
+    machine.add_parser(sub)
     from . import runtime
     p = sub.add_parser("run", help="build and run the soft-PLC (Modbus/TCP, OpenPLC map)", description=
                        "Compile the ST program (default: the project's st_src/) and run it as a soft-PLC serving "

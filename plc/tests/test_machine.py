@@ -1,0 +1,83 @@
+"""plc machine: configs/machine.toml is checked with file:line errors and generates FB_MachineConfig reproducibly."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = ROOT / "configs" / "machine.toml"
+GENERATED = ROOT / "st_src" / "app" / "generated" / "FB_MachineConfig.st"
+
+
+def machine(*args, cwd=ROOT):
+    # PYTHONPATH: from the project root `plc` would otherwise be the folder plc/, not the package plc/plc
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "plc"))
+    return subprocess.run([sys.executable, "-m", "plc.cli", "machine", *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=60, env=env)
+
+
+def test_the_shipped_configuration_checks_clean_and_matches_the_generated_st():
+    proc = machine("check")
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_generation_is_reproducible(tmp_path):
+    out = tmp_path / "FB_MachineConfig.st"
+    assert machine("generate", "--out", str(out)).returncode == 0
+    assert out.read_text() == GENERATED.read_text()
+
+
+def test_drift_is_an_error(tmp_path):
+    out = tmp_path / "FB_MachineConfig.st"
+    out.write_text(GENERATED.read_text().replace("Rotary.pockets := 6;", "Rotary.pockets := 7;"))
+    proc = machine("check", "--out", str(out))
+    assert proc.returncode == 1
+    assert "out of date" in proc.stderr
+
+
+def line_of(text: str, needle: str) -> int:
+    return next(n for n, l in enumerate(text.splitlines(), 1) if l.startswith(needle))
+
+
+@pytest.mark.parametrize("edit,needle,message", [
+    ("pockets = 6 ", "pockets =", "[carousel] pockets: expected an integer 2..50, got 60"),
+    ("inputs = \"home+pocket\"", "inputs =", "'home+optical' is not one of"),
+    ("homing = \"positive\"", "homing =", "counting pockets (inputs = home+pocket) needs homing"),
+    ("auto_home = true", "auto_home =", "[changer] auto_home: expected true or false"),
+    ("brake_ms = 50", "brake_ms", "[simulation] brake_ms: expected an integer 0..60000, got -5"),
+    ("stop_delay_ms = 0", "stop_delay_ms", "[carousel] stop_delay: unknown setting"),
+])
+def test_each_bad_setting_is_reported_with_its_line(tmp_path, edit, needle, message):
+    text = CONFIG.read_text()
+    replacement = {
+        "pockets = 6 ": "pockets = 60 ",
+        "inputs = \"home+pocket\"": "inputs = \"home+optical\"",
+        "homing = \"positive\"": "homing = \"none\"",
+        "auto_home = true": "auto_home = 1",
+        "brake_ms = 50": "brake_ms = -5",
+        "stop_delay_ms = 0": "stop_delay = 0",
+    }[edit]
+    bad = text.replace(edit, replacement, 1)
+    assert bad != text
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(bad)
+    proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
+    assert proc.returncode == 1
+    line = line_of(bad, needle.replace("stop_delay_ms", "stop_delay"))
+    assert f"{cfg}:{line}: error:" in proc.stderr, proc.stderr
+    assert message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
+    bad = CONFIG.read_text().replace('inputs = "home+pocket"', 'inputs = "code"').replace(
+        "pocket_codes = [6, 7, 3, 1, 5, 4]", "pocket_codes = [6, 7, 3, 1, 5, 5]")
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(bad)
+    proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
+    assert proc.returncode == 1
+    assert "pocket_codes: code 5 is used twice" in proc.stderr
