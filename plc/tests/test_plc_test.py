@@ -125,3 +125,9 @@ def test_enum_asserts_name_the_values_and_array_helper_names_the_index(tmp_path)
     assert "light passes" not in out
     assert "levels[3]: expected 3, actual 4" in out
     assert "levels[1]" not in out and "levels[2]" not in out
+
+
+def test_bool_and_or_skip_the_right_operand_as_in_matiec(tmp_path):
+    proc = plc_test(tmp_path, str(FIXTURES / "short_circuit.st"))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "PASS  TEST_ShortCircuit" in proc.stdout
