@@ -133,6 +133,12 @@ class Gen:
         w("#include <setjmp.h>")
         w("#include <stddef.h>")
         w('#include "plc_rt.h"')
+        w("/* ST may compare a variable with a bound of its own type (i < -32768, u >= 0): legal, not a bug. */")
+        w("#if defined(__clang__)")
+        w('#pragma clang diagnostic ignored "-Wtautological-constant-out-of-range-compare"')
+        w("#elif defined(__GNUC__)")
+        w('#pragma GCC diagnostic ignored "-Wtype-limits"')
+        w("#endif")
         w()
         w("static int64_t plc_clock;")
         w("static plc_fault_t plc_fault_rec;")
@@ -224,6 +230,14 @@ class Gen:
     # --------------------------------------------------------------- globals --
     def globals_decl(self) -> None:
         if self.cfg is None:
+            # no CONFIGURATION (a library build): VAR_EXTERNALs have nothing to bind to, so each
+            # name gets private storage and the blocks still compile and run (in tests, say)
+            seen = set()
+            for pt in self.p.pous.values():
+                for v in (pt.scope.vars.values() if pt.scope is not None else []):
+                    if v.section == "VAR_EXTERNAL" and v.global_sym is None and v.name not in seen:
+                        seen.add(v.name)
+                        self.w(f"static {self.ctype(v.type)} G_{cid(v.name)};")
             return
         for g in self.cfg.globals.values():
             ct = self.ctype(g.type)
@@ -376,6 +390,7 @@ class Gen:
             if v.section in ("VAR", "VAR_TEMP"):
                 self.w(f"{self.ctype(v.type)} {cid(v.name)};")
                 self.emit_init(cid(v.name), v.type, v.init)
+                self.w(f"(void){cid(v.name)};")        # a local may be set and never read
             elif v.section == "VAR_OUTPUT":
                 self.emit_init(f"(*{cid(v.name)})", v.type, v.init)
         self.block(fs.pou.body)
@@ -980,8 +995,13 @@ class Gen:
         cfg = self.cfg
         # min/max helpers used by MIN/MAX/LIMIT
         self.out.insert(self.helpers_at(), self.minmax_helpers())
+        singles = [t for t in cfg.tasks if t.single is not None] if cfg is not None else []
+        for k, _t in enumerate(singles):      # SINGLE tasks: an R_TRIG on their BOOL global
+            w(f"static uint8_t plc_single_prev_{k}, plc_single_fire_{k};")
         w("static void plc_init(void) {")
         self.ind += 1
+        for k, _t in enumerate(singles):
+            w(f"plc_single_prev_{k} = 0;")
         w("plc_fault_rec.kind = PLC_FAULT_NONE;")
         w("plc_fault_rec.pou = NULL;")
         w("plc_fault_rec.file = NULL;")
@@ -1009,10 +1029,18 @@ class Gen:
         w("    plc_jmp_active = NULL;")
         w("    return plc_fault_rec.kind;")
         w("}")
+        for k, t in enumerate(singles):
+            # sampled at the start of the tick, before any program runs (as MATIEC)
+            ref = self.var_ref(t.single)
+            w(f"plc_single_fire_{k} = (uint8_t)({ref} && !plc_single_prev_{k});")
+            w(f"plc_single_prev_{k} = {ref};")
         if cfg is not None:
             for inst in cfg.instances:
                 every = inst.task.every if inst.task is not None else 1
-                if every > 1:
+                if inst.task is not None and inst.task.single is not None:
+                    w("(void)tick;")
+                    w(f"if (plc_single_fire_{singles.index(inst.task)}) P_{inst.type.name}_body(&{inst.cname});")
+                elif every > 1:
                     w(f"if (tick % {every}u == 0) P_{inst.type.name}_body(&{inst.cname});")
                 else:
                     w(f"(void)tick;")

@@ -6,6 +6,7 @@ as diagnostics.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
 import os
@@ -93,6 +94,24 @@ def builtin_files(test_build: bool) -> list[Path]:
     return files
 
 
+# The parser refuses nesting deeper than parser.MAX_DEPTH levels; the recursive passes over such a
+# tree need a few thousand frames, whatever the caller's own stack depth (pytest, a worker) is.
+STACK_FRAMES = 10_000
+
+
+def deep_recursion(fn):
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        old = sys.getrecursionlimit()
+        sys.setrecursionlimit(max(old, STACK_FRAMES))
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            sys.setrecursionlimit(old)
+    return wrapper
+
+
+@deep_recursion
 def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False, portability: bool = True,
                     target: str | None = None, generate: bool = True,
                     extra_texts: list[tuple[str, str]] | None = None) -> CompileResult:

@@ -7,6 +7,8 @@ input; an unknown character becomes an error diagnostic and is skipped.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 from .diagnostics import Diagnostics, Pos
@@ -50,6 +52,20 @@ class Token:
 
     def is_sym(self, *syms: str) -> bool:
         return self.kind == "SYM" and self.value in syms
+
+
+# ASCII only: str.isdigit() and friends also accept '³', 'é' or Arabic digits, which
+# are not IEC 61131-3 identifiers or numbers (and int('³') raises).
+def is_digit(c: str) -> bool:
+    return len(c) == 1 and "0" <= c <= "9"
+
+
+def is_alpha(c: str) -> bool:
+    return len(c) == 1 and ("a" <= c <= "z" or "A" <= c <= "Z")
+
+
+def is_alnum(c: str) -> bool:
+    return is_digit(c) or is_alpha(c)
 
 
 class Lexer:
@@ -98,9 +114,9 @@ class Lexer:
                 self.c_comment()
             elif c == "{":
                 self.pragma()
-            elif c.isalpha() or c == "_":
+            elif is_alpha(c) or c == "_":
                 self.word()
-            elif c.isdigit():
+            elif is_digit(c):
                 self.number()
             elif c == "'" or c == '"':
                 self.string(c)
@@ -148,7 +164,7 @@ class Lexer:
 
     def word(self) -> None:
         start, pos = self.i, self.pos()
-        while self.peek().isalnum() or self.peek() == "_":
+        while is_alnum(self.peek()) or self.peek() == "_":
             self.advance()
         text = self.src[start:self.i]
         up = text.upper()
@@ -169,7 +185,7 @@ class Lexer:
         body_start = self.i
         while True:
             c = self.peek()
-            if c.isalnum() or c in "_.:":
+            if is_alnum(c) or c in "_.:":
                 self.advance()
             elif c in "+-" and (self.i == body_start or kind in ("DATE", "DT", "LDATE", "LDT")):
                 self.advance()
@@ -191,9 +207,23 @@ class Lexer:
             else:
                 return "".join(out)
 
+    def to_int(self, digits: str, base: int, pos: Pos) -> int:
+        """The value of a digit string; a literal no 64-bit type can hold is reported here, not converted."""
+        if len(digits) > 70:
+            self.diags.error(pos, f"integer literal of {len(digits)} digits is too long", "64 bits at most")
+            return 0
+        return int(digits, base)
+
+    def to_real(self, text: str, pos: Pos) -> float:
+        v = float(text)
+        if math.isinf(v):
+            self.diags.error(pos, "real literal is too large", "LREAL holds about 1.8E308 at most")
+            return 0.0
+        return v
+
     def number(self) -> None:
         start, pos = self.i, self.pos()
-        whole = self.digits(str.isdigit)
+        whole = self.digits(is_digit)
         if self.peek() == "#":
             base = int(whole) if whole else 0
             self.advance()
@@ -207,11 +237,11 @@ class Lexer:
             if not body:
                 self.diags.error(pos, f"missing digits after '{base}#'")
                 body = "0"
-            self.emit("INT", int(body, base), start, pos)
+            self.emit("INT", self.to_int(body, base, pos), start, pos)
             return
-        if self.peek() == "." and self.peek(1).isdigit():
+        if self.peek() == "." and is_digit(self.peek(1)):
             self.advance()
-            frac = self.digits(str.isdigit)
+            frac = self.digits(is_digit)
             exp = ""
             if self.peek() in "eE":
                 save = (self.i, self.line, self.col)
@@ -220,24 +250,24 @@ class Lexer:
                 if self.peek() in "+-":
                     sign = self.peek()
                     self.advance()
-                e = self.digits(str.isdigit)
+                e = self.digits(is_digit)
                 if e:
                     exp = "e" + sign + e
                 else:
                     self.i, self.line, self.col = save
-            self.emit("REAL", float(f"{whole}.{frac}{exp}"), start, pos)
+            self.emit("REAL", self.to_real(f"{whole}.{frac}{exp}", pos), start, pos)
             return
-        if self.peek() in "eE" and self.peek() != "" and (self.peek(1).isdigit() or
-                                                            (self.peek(1) in "+-" and self.peek(2).isdigit())):
+        if self.peek() in "eE" and self.peek() != "" and (is_digit(self.peek(1)) or
+                                                            (self.peek(1) in "+-" and is_digit(self.peek(2)))):
             self.advance()
             sign = ""
             if self.peek() in "+-":
                 sign = self.peek()
                 self.advance()
-            e = self.digits(str.isdigit)
-            self.emit("REAL", float(f"{whole}e{sign}{e}"), start, pos)
+            e = self.digits(is_digit)
+            self.emit("REAL", self.to_real(f"{whole}e{sign}{e}", pos), start, pos)
             return
-        self.emit("INT", int(whole), start, pos)
+        self.emit("INT", self.to_int(whole, 10, pos), start, pos)
 
     def string(self, quote: str) -> None:
         start, pos = self.i, self.pos()
@@ -283,19 +313,19 @@ class Lexer:
         size = self.peek().upper()
         if size in ("X", "B", "W", "D", "L"):
             self.advance()
-        elif size.isdigit():
+        elif is_digit(size):
             size = "X"
         else:
             self.diags.error(pos, "invalid direct address size", "sizes are X, B, W, D and L")
             size = "X"
         parts = []
         while True:
-            d = self.digits(str.isdigit)
+            d = self.digits(is_digit)
             if not d:
                 self.diags.error(pos, "missing address number in direct variable")
                 d = "0"
-            parts.append(int(d))
-            if self.peek() == "." and self.peek(1).isdigit():
+            parts.append(self.to_int(d, 10, pos))
+            if self.peek() == "." and is_digit(self.peek(1)):
                 self.advance()
                 continue
             break

@@ -33,7 +33,7 @@ VAR_SECTIONS = ("VAR", "VAR_INPUT", "VAR_OUTPUT", "VAR_IN_OUT", "VAR_EXTERNAL", 
 STMT_END = ("END_IF", "ELSIF", "ELSE", "END_CASE", "END_FOR", "END_WHILE", "UNTIL", "END_REPEAT",
             "END_FUNCTION", "END_FUNCTION_BLOCK", "END_PROGRAM")
 TOP_KEYWORDS = ("FUNCTION", "FUNCTION_BLOCK", "PROGRAM", "CONFIGURATION", "TYPE", "VAR_GLOBAL")
-POU_ENDS = ("END_FUNCTION", "END_FUNCTION_BLOCK", "END_PROGRAM", "END_CONFIGURATION", "END_RESOURCE", "END_TYPE")
+POU_ENDS = ("END_FUNCTION", "END_FUNCTION_BLOCK", "END_PROGRAM")
 
 
 class ParseError(Exception):
@@ -103,6 +103,11 @@ class Parser:
             raise self.fail(f"'{t.text}' is a keyword and cannot be used as {what}")
         raise self.fail(f"expected {what}, found {self.describe(t)}")
 
+    def ensure_progress(self, before: int) -> None:
+        """After error recovery in a loop: if nothing was consumed, skip one token (never loop forever)."""
+        if self.k == before and self.tok.kind != "EOF":
+            self.next()
+
     def sync(self, stops: tuple[str, ...] = ()) -> None:
         """Skip to just after the next ';' or to a keyword in `stops` / a top-level keyword."""
         start = self.k
@@ -112,8 +117,8 @@ class Parser:
                 return
             if self.tok.kind == "KEYWORD" and (self.tok.value in stops or self.tok.value in TOP_KEYWORDS
                                                or self.tok.value.startswith("END_")):
-                if self.k == start and self.tok.value not in TOP_KEYWORDS and self.tok.value not in POU_ENDS:
-                    self.next()         # (never swallow the END_PROGRAM/... that closes the enclosing POU)
+                if self.k == start and self.tok.value not in TOP_KEYWORDS:
+                    self.next()
                 return
             self.next()
 
@@ -173,6 +178,7 @@ class Parser:
             if self.tok.kind == "EOF" or self.tok.is_kw(*TOP_KEYWORDS):
                 raise self.fail(f"expected END_TYPE to close TYPE opened at {start.pos.line}:{start.pos.col}",
                                 pos=self.tok.pos)
+            before = self.k
             try:
                 name = self.ident("a type name")
                 self.expect_sym(":", "after the type name")
@@ -184,11 +190,21 @@ class Parser:
                 decls.append(A.TypeDecl(name.pos, name.value, name.text, spec, init))
             except ParseError:
                 self.sync(("END_TYPE",))
+                self.ensure_progress(before)
         self.next()
         self.accept_sym(";")
         return A.TypeBlock(start.pos, decls)
 
     def type_spec(self) -> A.TypeSpec:
+        self.depth += 1
+        try:
+            if self.depth > MAX_DEPTH:
+                raise self.fail("type nested too deeply")
+            return self._type_spec()
+        finally:
+            self.depth -= 1
+
+    def _type_spec(self) -> A.TypeSpec:
         t = self.tok
         if t.is_kw("ARRAY"):
             return self.array_spec()
@@ -262,6 +278,7 @@ class Parser:
         while not self.at_kw("END_STRUCT"):
             if self.tok.kind == "EOF" or self.tok.is_kw("END_TYPE", *TOP_KEYWORDS):
                 raise self.fail(f"expected END_STRUCT to close STRUCT opened at {start.pos.line}:{start.pos.col}")
+            before = self.k
             try:
                 names = [self.ident("a member name")]
                 while self.accept_sym(","):
@@ -274,10 +291,20 @@ class Parser:
                     members.append(A.StructMember(n.pos, n.value, spec, init, n.text))
             except ParseError:
                 self.sync(("END_STRUCT",))
+                self.ensure_progress(before)
         self.next()
         return A.StructSpec(start.pos, members)
 
     def initializer(self) -> A.Init:
+        self.depth += 1
+        try:
+            if self.depth > MAX_DEPTH:
+                raise self.fail("initial value nested too deeply")
+            return self._initializer()
+        finally:
+            self.depth -= 1
+
+    def _initializer(self) -> A.Init:
         t = self.tok
         if t.is_sym("["):
             return self.array_init()
@@ -336,10 +363,12 @@ class Parser:
                                            or self.tok.value in TOP_KEYWORDS)):
                 raise self.fail(f"expected END_VAR to close {section} opened at {start.pos.line}:{start.pos.col}",
                                 pos=self.tok.pos)
+            before = self.k
             try:
                 decls.extend(self.var_decl(section, constant, retain))
             except ParseError:
                 self.sync(("END_VAR",))
+                self.ensure_progress(before)
         self.next()
         self.accept_sym(";")
         return A.VarBlock(start.pos, section, constant, retain, decls)
@@ -429,11 +458,22 @@ class Parser:
                 if s is not None:
                     out.append(s)
             except ParseError:
+                if self.at_kw(*POU_ENDS):   # a statement left open: let the POU close (one error, not two)
+                    return out
                 self.sync(ends)
             if self.k == before:
                 self.next()
 
     def statement(self) -> A.Stmt | None:
+        self.depth += 1
+        try:
+            if self.depth > MAX_DEPTH:
+                raise self.fail("statements nested too deeply")
+            return self._statement()
+        finally:
+            self.depth -= 1
+
+    def _statement(self) -> A.Stmt | None:
         t = self.tok
         if t.is_sym(";"):
             self.next()
@@ -819,6 +859,7 @@ class Parser:
             if t.kind == "EOF" or t.is_kw("FUNCTION", "FUNCTION_BLOCK", "PROGRAM") and not self.la().kind == "IDENT":
                 raise self.fail(f"expected END_CONFIGURATION to close CONFIGURATION opened at "
                                 f"{kw.pos.line}:{kw.pos.col}, found {self.describe(t)}")
+            before = self.k
             try:
                 if t.is_kw("VAR_GLOBAL", "VAR_ACCESS", "VAR_CONFIG"):
                     globals_.append(self.var_block())
@@ -833,6 +874,7 @@ class Parser:
                                     f"found {self.describe(t)}")
             except ParseError:
                 self.sync(("END_CONFIGURATION", "RESOURCE", "END_RESOURCE"))
+                self.ensure_progress(before)
                 if self.at_kw("END_RESOURCE"):
                     self.next()
                     self.accept_sym(";")
@@ -853,6 +895,7 @@ class Parser:
             t = self.tok
             if t.kind == "EOF" or t.is_kw("END_CONFIGURATION"):
                 raise self.fail(f"expected END_RESOURCE to close RESOURCE opened at {kw.pos.line}:{kw.pos.col}")
+            before = self.k
             try:
                 if t.is_kw("VAR_GLOBAL"):
                     globals_.append(self.var_block())
@@ -864,6 +907,7 @@ class Parser:
                     raise self.fail(f"expected TASK, PROGRAM or VAR_GLOBAL in the resource, found {self.describe(t)}")
             except ParseError:
                 self.sync(("END_RESOURCE", "TASK", "PROGRAM"))
+                self.ensure_progress(before)
         self.next()
         self.accept_sym(";")
         return A.Resource(kw.pos, name.value, name.text, on, globals_, tasks, progs)

@@ -44,6 +44,7 @@ class TaskInfo:
     priority: int
     pos: Pos
     every: int = 1
+    single: object = None      # VarSym of the BOOL global whose rising edge runs the task (SINGLE)
 
 
 @dataclass(eq=False)
@@ -655,19 +656,26 @@ class Analyzer:
                 if td.name in tasks:
                     self.err(td.pos, f"duplicate task '{td.text}'")
                     continue
+                single = None
+                if td.single is not None:
+                    st = self.expr(td.single, gscope, T.BOOL)
+                    sym = getattr(td.single, "sym", None)
+                    if not isinstance(td.single, A.Name) or not isinstance(sym, VarSym) or not T.is_elem(st, "bool"):
+                        self.err(td.single.pos, "SINGLE needs a BOOL global variable",
+                                 "TASK ev(SINGLE := trigger, PRIORITY := 1); with trigger in VAR_GLOBAL")
+                    else:
+                        single = sym
                 interval = 0
                 if td.interval is not None:
                     self.expr(td.interval, gscope, T.TIME)
                     v = self.const_value(td.interval)
                     if not isinstance(td.interval, A.TimeLit) or v is None or v <= 0:
                         self.err(td.interval.pos, "INTERVAL must be a positive TIME literal", "INTERVAL := T#10ms")
-                    else:
+                    elif single is None:       # as MATIEC, SINGLE wins: the task runs on rising edges only
                         interval = v
-                else:
-                    self.err(td.pos, f"task '{td.text}' has no INTERVAL",
-                             "event tasks (SINGLE) are not supported: give it an INTERVAL")
-                if td.single is not None:
-                    self.err(td.single.pos, "SINGLE (event) tasks are not supported")
+                elif td.single is None:
+                    self.err(td.pos, f"task '{td.text}' has neither INTERVAL nor SINGLE",
+                             "TASK t(INTERVAL := T#10ms, PRIORITY := 0);")
                 prio = 0
                 if td.priority is not None:
                     p = self.const_int(td.priority)
@@ -675,7 +683,7 @@ class Analyzer:
                         self.err(td.priority.pos, "PRIORITY must be a non-negative integer")
                     else:
                         prio = p
-                ti = TaskInfo(td.name, interval, prio, td.pos)
+                ti = TaskInfo(td.name, interval, prio, td.pos, single=single)
                 tasks[td.name] = ti
                 info.tasks.append(ti)
             for pi in res.programs:
@@ -704,6 +712,8 @@ class Analyzer:
                 info.instances.append(InstanceInfo(pi.name, pt, task, res.name, pi.pos))
         intervals = [t.interval_ns for t in info.tasks if t.interval_ns > 0]
         info.base_tick_ns = reduce(math.gcd, intervals) if intervals else 0
+        if not intervals and any(t.single is not None for t in info.tasks):
+            self.err(cfg.pos, "a configuration needs at least one periodic task (INTERVAL) to set the scan tick")
         for t in info.tasks:
             if info.base_tick_ns and t.interval_ns:
                 t.every = t.interval_ns // info.base_tick_ns
@@ -861,6 +871,9 @@ class Analyzer:
                         if not self.is_constant_expr(e):
                             self.err(e.pos, "CASE labels must be constants")
                             continue
+                        if isinstance(e, A.Name) or (isinstance(e, A.Unary) and isinstance(e.operand, A.Name)):
+                            self.port(e.pos, "a named constant as a CASE label is rejected by MATIEC",
+                                      "write the value as a literal", code="portability.case-constant")
                         if not (isinstance(T.resolve_base(lt), T.LiteralType) or T.same_type(lt, b)):
                             self.err(e.pos, f"CASE label of type {lt} does not match the selector type {b}")
                             continue
@@ -1279,6 +1292,10 @@ class Analyzer:
                 self.err(e.right.pos, "division by zero")
             return T.ANY_INT_LIT
         if isinstance(lb, T.LiteralType) or isinstance(rb, T.LiteralType):
+            # fix_literal could not give the literal the other side's type (2.5 + i, 1.0 MOD d)
+            lit, other = (lb, rt) if isinstance(lb, T.LiteralType) else (rb, lt)
+            self.err(e.pos, f"'{op}' of {'a REAL' if lit.cat == 'real' else 'an integer'} literal and {other}: "
+                     f"the literal is not a {other}", self.conv_hint(lt, rt) if lit.cat != "real" else None)
             return T.ERROR
         if op in self.COMPARE:
             if not self.same_for_op(lb, rb):
@@ -1468,6 +1485,9 @@ class Analyzer:
     def en_eno_arg(self, a: A.Arg) -> None:
         """EN := condition and ENO => variable, accepted by every call."""
         if a.name == "EN" and not a.output:
+            if a.value is None:
+                self.err(a.pos, "EN := needs a value")
+                return
             self.expr(a.value, self.scope, T.BOOL)
             self.assign_compat(a.value, a.value.ty, T.BOOL, a.pos, "EN")
         elif a.name == "ENO" and a.output:

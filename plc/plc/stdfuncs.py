@@ -61,6 +61,10 @@ class StdFunc:
             if a.name != "ENO":
                 an.err(a.pos, f"{self.name} has no output '{a.text or a.name}'")
         args = [a for a in c.args if not a.output and a.name != "EN"]
+        for a in args:
+            if a.value is None:                 # `IN := ,`
+                an.err(a.pos, f"argument '{a.text or a.name}' of {self.name} has no value")
+                return None
         if any(a.name is not None for a in args):
             if any(a.name is None for a in args):
                 an.err(c.pos, f"call of {self.name} mixes positional and formal arguments")
@@ -88,6 +92,9 @@ class StdFunc:
     def check(self, an, c: A.Call, scope, expected) -> T.Type:
         for a in c.args:
             if a.name == "EN" and not a.output:
+                if a.value is None:
+                    an.err(a.pos, "EN := needs a value")
+                    continue
                 an.expr(a.value, scope, T.BOOL)
             if a.name == "ENO" and a.output and a.value is not None:
                 tt = an.lvalue(a.value, "write ENO into")

@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import datetime as _dt
 import re
+from fractions import Fraction
+
+INT64_MAX = (1 << 63) - 1
 
 _UNITS = [("d", 86_400_000_000_000), ("h", 3_600_000_000_000), ("ms", 1_000_000), ("us", 1_000),
           ("ns", 1), ("m", 60_000_000_000), ("s", 1_000_000_000)]
@@ -15,18 +18,20 @@ def duration_ns(text: str) -> int | None:
     body = body.lstrip("+-")
     if not body:
         return None
-    pos, total, seen = 0, 0.0, False
+    pos, total, seen = 0, Fraction(0), False
     while pos < len(body):
         m = _PART.match(body, pos)
-        if not m:
+        if not m or len(m.group(1)) > 40:
             return None
         unit = m.group(2).lower()
-        total += float(m.group(1)) * dict(_UNITS)[unit]
+        total += Fraction(m.group(1)) * dict(_UNITS)[unit]       # exact: no float rounding
         pos = m.end()
         seen = True
     if not seen:
         return None
-    ns = int(round(total))
+    ns = round(total)
+    if ns > INT64_MAX:                 # TIME is a signed 64-bit count of nanoseconds
+        return None
     return -ns if neg else ns
 
 

@@ -71,6 +71,67 @@ def test_programs_run_in_declaration_order_not_priority_order():
     assert trace[10] == 211121121          # tick 10: slow, then fast again
 
 
+EVENTS = r"""
+PROGRAM P_Low
+VAR_EXTERNAL
+    trace : DINT;
+END_VAR
+trace := trace * 10 + 1;
+END_PROGRAM
+
+PROGRAM P_High
+VAR_EXTERNAL
+    trace : DINT;
+END_VAR
+trace := trace * 10 + 2;
+END_PROGRAM
+
+PROGRAM P_Trigger
+VAR_EXTERNAL
+    trig : BOOL;
+END_VAR
+VAR
+    n : INT;
+END_VAR
+n := n + 1;
+trig := (n MOD 3) = 0;            (* TRUE on scans 3, 6, 9 *)
+END_PROGRAM
+
+PROGRAM P_OnEvent
+VAR_EXTERNAL
+    events : DINT;
+END_VAR
+events := events + 1;
+END_PROGRAM
+
+CONFIGURATION Config0
+    VAR_GLOBAL
+        trace : DINT;
+        trig : BOOL;
+        events : DINT;
+    END_VAR
+    RESOURCE Res0 ON PLC
+        TASK lowPrio(INTERVAL := T#4ms, PRIORITY := 5);
+        TASK highPrio(INTERVAL := T#4ms, PRIORITY := 0);
+        TASK onTrig(SINGLE := trig, PRIORITY := 1);
+        PROGRAM lowInst WITH lowPrio : P_Low;
+        PROGRAM highInst WITH highPrio : P_High;
+        PROGRAM trigInst WITH highPrio : P_Trigger;
+        PROGRAM eventInst WITH onTrig : P_OnEvent;
+    END_RESOURCE
+END_CONFIGURATION
+"""
+
+
+def test_priority_does_not_change_the_order_and_single_runs_once_per_rising_edge():
+    run = run_st(EVENTS, scans=10)
+    assert run.base_tick_ns == 4 * MS
+    assert run.value("CONFIG0.TRACE", 1) == 12           # lowInst (priority 5) still runs first
+    # trig is set by a program on scans 3, 6, 9; the SINGLE task samples it at the start of the
+    # next tick, before any program, so its program runs on scans 4, 7 and 10
+    assert run.series("CONFIG0.EVENTS") == [0, 0, 0, 1, 1, 1, 2, 2, 2, 3]
+
+
 GLOBALS = r"""
 TYPE
     ST_Pair : STRUCT

@@ -178,6 +178,13 @@ VAR
     dw : DWORD;
     quote : STRING;
     dq : STRING;
+    longTod : TOD;
+    longDate : DATE;
+    longDt : DT;
+    typedReal : REAL;
+    typedLreal : LREAL;
+    subMs : TIME;
+    typedBin : USINT;
 END_VAR
 i5 := INT#5;
 uHex := UINT#16#FFFF;
@@ -210,6 +217,13 @@ oneByte := BYTE#255;
 dw := DWORD#2#1111;
 quote := 'it$'s';
 dq := '$22$41';
+longTod := TIME_OF_DAY#12:00:00;
+longDate := DATE#2024-01-02;
+longDt := DATE_AND_TIME#2024-01-02-12:00:00;
+typedReal := REAL#1.5;
+typedLreal := LREAL#-2.25E2;
+subMs := T#1.5ms;
+typedBin := USINT#2#1111_0000;
 END_PROGRAM
 """
 
@@ -314,6 +328,8 @@ def test_integer_and_bit_string_literals(run):
     assert v(run, "P_Literals.sNeg") == -128
     assert v(run, "P_Literals.oneByte") == 255
     assert v(run, "P_Literals.dw") == 15
+    assert v(run, "P_Literals.typedBin") == 0xF0
+    assert (v(run, "P_Literals.typedReal"), v(run, "P_Literals.typedLreal")) == (1.5, -225.0)
 
 
 def test_time_and_date_literals(run):
@@ -327,6 +343,10 @@ def test_time_and_date_literals(run):
     assert v(run, "P_Literals.tod1") == 43200 * S
     assert v(run, "P_Literals.d1") == 1704153600 * S
     assert v(run, "P_Literals.dt1") == 1704196800 * S
+    assert v(run, "P_Literals.longTod") == v(run, "P_Literals.tod1")
+    assert v(run, "P_Literals.longDate") == v(run, "P_Literals.d1")
+    assert v(run, "P_Literals.longDt") == v(run, "P_Literals.dt1")
+    assert v(run, "P_Literals.subMs") == 1_500_000
 
 
 def test_real_and_string_literals(run):

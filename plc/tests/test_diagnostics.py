@@ -74,6 +74,12 @@ def test_arithmetic_on_a_bit_string_is_rejected():
     assert errors(prog("VAR w : WORD; END_VAR", "w := w AND 16#FF;")) == []
 
 
+def test_real_literal_mixed_with_an_integer_variable():
+    assert one_error(prog("VAR d : DINT; END_VAR", "d := d + 2.5;")) == \
+        (3, 8, "'+' of a REAL literal and DINT: the literal is not a DINT")
+    assert one_error(prog("VAR i : INT; END_VAR", "i := 2.5;"))[:2] == (3, 6)
+
+
 def test_literal_out_of_range_for_int():
     assert one_error(prog("VAR i : INT; END_VAR", "i := 40000;")) == \
         (3, 6, "literal 40000 is out of range for INT (-32768..32767)")
@@ -180,6 +186,30 @@ def test_every_error_of_a_file_is_reported_in_one_run():
     errs = errors(src)
     assert [(ln, col) for ln, col, _m in errs] == [(3, 6), (4, 8), (5, 6), (6, 1), (7, 11)]
     assert len({m for _l, _c, m in errs}) == 5
+
+
+def test_single_task_needs_a_bool_global():
+    src = (prog("VAR x : INT; END_VAR", "x := 1;") +
+           "CONFIGURATION Config0\nVAR_GLOBAL n : INT; END_VAR\nRESOURCE Res0 ON PLC\n"
+           "TASK t0(INTERVAL := T#4ms, PRIORITY := 0);\nTASK ev(SINGLE := n, PRIORITY := 1);\n"
+           "PROGRAM i0 WITH t0 : Main;\nEND_RESOURCE\nEND_CONFIGURATION\n")
+    assert one_error(src) == (9, 19, "SINGLE needs a BOOL global variable")
+
+
+def test_nesting_is_limited_instead_of_exhausting_the_stack():
+    deep = "x := " + "(" * 500 + "1" + ")" * 500 + ";"
+    errs = errors(prog("VAR x : INT; END_VAR", deep))
+    assert errs and errs[0][2] == "expression nested too deeply"
+    ok = "x := " + "(" * 50 + "1" + ")" * 50 + ";"
+    assert errors(prog("VAR x : INT; END_VAR", ok)) == []
+
+
+def test_huge_literals_are_diagnosed():
+    errs = errors(prog("VAR x : LINT; r : LREAL; t : TIME; END_VAR",
+                       "x := " + "9" * 100 + ";\nr := 1.0E999;\nt := T#" + "9" * 30 + "d;"))
+    assert [e[:2] for e in errs] == [(3, 6), (4, 6), (5, 6)]
+    assert errs[0][2] == "integer literal of 100 digits is too long"
+    assert errs[1][2] == "real literal is too large"
 
 
 # ====================================================================== syntax errors
