@@ -717,6 +717,9 @@ class Gen:
         if isinstance(t, T.LiteralType):
             t = T.LINT if t.cat == "int" else T.LREAL
         a, b = self.ex(e.left), self.ex(e.right)
+        if op in ("AND", "OR") and isinstance(t, T.Elementary) and t.cat == "bool":
+            # MATIEC emits && and || for BOOL: the right operand is not evaluated when the left decides
+            return f"((uint8_t)({a} {'&&' if op == 'AND' else '||'} {b}))"
         if op in ("AND", "OR", "XOR"):
             cop = {"AND": "&", "OR": "|", "XOR": "^"}[op]
             return f"(({self.ctype(t)})({a} {cop} {b}))"
@@ -1139,7 +1142,7 @@ class Gen:
         h = zlib.crc32("\n".join(f"{p}:{a}:{ct}" for p, a, r, c, _ad, ct in entries if r).encode())
         w("const plc_program_t plc_program = {")
         w("    PLC_ABI_VERSION,")
-        w(f"    {c_string(cfg.name) if cfg else 'NULL'},")
+        w(f"    {c_string(cfg.decl.text) if cfg else 'NULL'},")
         w(f"    {cfg.base_tick_ns if cfg else 0}u,")
         w(f"    {'plc_task_table' if tasks else 'NULL'}, {len(tasks)}u,")
         w(f"    {'plc_located_table' if located else 'NULL'}, {len(located)}u,")
