@@ -109,6 +109,9 @@ def parser() -> argparse.ArgumentParser:
     runtime.add_run_arguments(p)
     p.set_defaults(func=cmd_run)
     sub.add_parser("seq", help="check and compile tool-change sequences (plc seq --help)", add_help=False)
+    sub.add_parser("map", help="check the register map and generate from it (plc map --help)", add_help=False)
+    sub.add_parser("host", help="CNC host client: plc host \"T5 M6\" (plc host --help)", add_help=False)
+    sub.add_parser("deploy", help="bundle for OpenPLC: plc deploy openplc --out FILE.st", add_help=False)
     return ap
 
 
@@ -117,6 +120,10 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] == "seq":
         from .seq.cli import main as seq_main
         return seq_main(argv[1:])
+    if argv and argv[0] in ("map", "host", "deploy"):
+        from importlib import import_module
+        module = {"map": ".map.cli", "host": ".host.cli", "deploy": ".deploy"}[argv[0]]
+        return import_module(module, __package__).main(argv[1:])
     ap = parser()
     args = ap.parse_args(argv)
     if not getattr(args, "func", None):

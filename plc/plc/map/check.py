@@ -323,13 +323,19 @@ def _check_linuxcnc(rmap: RegisterMap, diags: Diagnostics) -> None:
     if lc.estop_chain and (not HAL_NAME.match(lc.estop_chain) or "." in lc.estop_chain):
         diags.error(rmap.section_pos("linuxcnc", "estop_chain"), "[linuxcnc] estop_chain must be a HAL signal "
                     "name (the machine HAL's E-stop chain), or \"\" to use iocontrol.0.user-enable-out")
-    for name in lc.settle:
-        sig = rmap.signal(name) if isinstance(name, str) else None
-        if sig is None:
-            diags.error(rmap.section_pos("linuxcnc", "settle"), f"[linuxcnc] settle: no signal named {name!r}")
-        elif sig.type != "BOOL" or not sig.hal:
-            diags.error(rmap.section_pos("linuxcnc", "settle"), f"[linuxcnc] settle: {name} must be a BOOL "
-                        f"signal wired to LinuxCNC (hal = ...)")
+    for key in ("settle", "settle_fall"):
+        for name in getattr(lc, key):
+            sig = rmap.signal(name) if isinstance(name, str) else None
+            if sig is None:
+                diags.error(rmap.section_pos("linuxcnc", key), f"[linuxcnc] {key}: no signal named {name!r}")
+            elif sig.type != "BOOL" or not sig.hal:
+                diags.error(rmap.section_pos("linuxcnc", key), f"[linuxcnc] {key}: {name} must be a BOOL "
+                            f"signal wired to LinuxCNC (hal = ...)")
+    both = {n.upper() for n in lc.settle if isinstance(n, str)} & {n.upper() for n in lc.settle_fall
+                                                                    if isinstance(n, str)}
+    if both:
+        diags.error(rmap.section_pos("linuxcnc", "settle_fall"), f"[linuxcnc] {', '.join(sorted(both))} in both "
+                    "settle and settle_fall")
     plan(rmap, diags)
 
 

@@ -200,7 +200,9 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
         for _n, sig in tx.pins:
             if sig is not None and _endpoint(sig, pins) is not None:
                 where[sig.name] = (tx, sig)
-    settle = [rmap.signal(n) for n in lc.settle if rmap.signal(n) is not None and rmap.signal(n).name in where]
+    settle = [rmap.signal(n) for n in lc.settle + lc.settle_fall
+              if rmap.signal(n) is not None and rmap.signal(n).name in where]
+    falling = {rmap.signal(n).name for n in lc.settle_fall if rmap.signal(n) is not None}
     signed = [sig for tx, sig in where.values() if not tx.writes and sig.type == "INT"]
     alive = rmap.signal(link.plc_alive)
     beat = rmap.signal(link.host_heartbeat)
@@ -258,10 +260,13 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
                     out += _wire_in(rmap, tx, sig, settle, signed, _endpoint(sig, pins))
     out.append("")
     if settle:
-        out.append(f"# ---- settle: rising edges wait {_num(lc.settle_s)} s (one mb2hal pass is "
-                   f"{_num(1.0 / lc.update_rate_hz)} s), falling edges pass at once")
-        for name in settle_names:
-            out += [f"setp {name}.on-delay {_num(lc.settle_s)}", f"setp {name}.off-delay 0"]
+        out.append(f"# ---- settle: these edges wait {_num(lc.settle_s)} s (one mb2hal pass is "
+                   f"{_num(1.0 / lc.update_rate_hz)} s), the other edge passes at once")
+        for sig, name in zip(settle, settle_names):
+            on, off = (0, lc.settle_s) if sig.name in falling else (lc.settle_s, 0)
+            edge = "falling" if sig.name in falling else "rising"
+            out += [f"# {sig.name}: {edge} edge delayed", f"setp {name}.on-delay {_num(on)}",
+                    f"setp {name}.off-delay {_num(off)}"]
         out.append("")
     if signed:
         out.append("# ---- INT registers arrive unsigned (0..65535): 32768..65535 -> -32768..-1")

@@ -123,7 +123,8 @@ class LinuxCnc:
     update_rate_hz: float = 50.0
     response_timeout_ms: int = 500
     settle_s: float = 0.05
-    settle: list[str] = field(default_factory=list)
+    settle: list[str] = field(default_factory=list)          # bits whose rising edge waits settle_s
+    settle_fall: list[str] = field(default_factory=list)     # bits whose falling edge waits settle_s
     thread: str = "servo-thread"
     estop_chain: str = ""        # HAL signal of the machine's E-stop chain ("" = iocontrol.0.user-enable-out)
 
@@ -178,7 +179,7 @@ _SECTIONS = {
     "link": {"plc_alive": str, "plc_alive_toggle_ms": int, "plc_timeout_ms": int, "host_heartbeat": str,
              "host_heartbeat_period_ms": int, "host_timeout_ms": int},
     "linuxcnc": {"host": str, "port": int, "slave_id": int, "component": str, "update_rate_hz": (int, float),
-                 "response_timeout_ms": int, "settle_s": (int, float), "settle": list, "thread": str,
+                 "response_timeout_ms": int, "settle_s": (int, float), "settle": list, "settle_fall": list, "thread": str,
                  "estop_chain": str},
 }
 

@@ -1,0 +1,239 @@
+"""`plc deploy openplc --out FILE.st`: the whole application as one ST file for an OpenPLC runtime upload.
+
+OpenPLC compiles one uploaded .st file with its MATIEC (`iec2c -f -l -p -r -R -a`) against its own library,
+so the file holds everything of st_src/ (the library, the generated tables, the application and the
+CONFIGURATION Config0 / RESOURCE Res0) and nothing of our test library.  Order: TYPE blocks first, each after
+the types it uses, then FUNCTIONs, FUNCTION_BLOCKs, PROGRAMs and the CONFIGURATION last; every item keeps the
+comment lines in front of it.  The result is compiled with our compiler for --target openplc and is written
+only when it has no error and no portability warning.  The output depends only on the sources.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import ast as A
+from .diagnostics import Diagnostics
+from .driver import collect_files, compile_sources, display_name, read_source
+from .parser import parse
+
+EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
+KIND_ORDER = {"TYPE": 0, "FUNCTION": 1, "FUNCTION_BLOCK": 2, "PROGRAM": 3, "CONFIGURATION": 4}
+
+
+@dataclass
+class Item:
+    kind: str                  # TYPE FUNCTION FUNCTION_BLOCK PROGRAM CONFIGURATION (VAR_GLOBAL outside: error)
+    names: list[str]           # declared names (upper case)
+    uses: set[str]             # type names a TYPE block refers to (upper case)
+    text: str                  # source text incl. the comments in front of it
+    origin: str                # file:line
+    order: int = 0             # position in the input (stable tie-break)
+    deps: set[int] = field(default_factory=set)
+
+
+def _type_refs(spec, out: set[str]) -> None:
+    if isinstance(spec, A.TypeRef):
+        out.add(spec.name.upper())
+    elif isinstance(spec, A.ArraySpec):
+        _type_refs(spec.elem, out)
+    elif isinstance(spec, A.SubrangeSpec):
+        _type_refs(spec.base, out)
+    elif isinstance(spec, A.StructSpec):
+        for m in spec.members:
+            _type_refs(m.spec, out)
+
+
+def _end_line(lines: list[str], start: int, keyword: str) -> int:
+    """1-based line of the first `keyword` at or after line `start` (outside comments), else the last line."""
+    depth_text = "\n".join(lines[start - 1:])
+    pattern = re.compile(r"\(\*.*?\*\)|\b" + keyword + r"\b", re.DOTALL | re.IGNORECASE)
+    for m in pattern.finditer(depth_text):
+        if not m.group(0).startswith("(*"):
+            return start + depth_text.count("\n", 0, m.start())
+    return len(lines)
+
+
+def split_items(name: str, text: str, diags: Diagnostics) -> list[Item]:
+    tree = parse(text, name, diags)
+    lines = text.splitlines()
+    items: list[Item] = []
+    prev_end = 0
+    for node in tree.items:
+        start = node.pos.line
+        if isinstance(node, A.TypeBlock):
+            end = _end_line(lines, start, "END_TYPE")
+            uses: set[str] = set()
+            for d in node.decls:
+                _type_refs(d.spec, uses)
+            item = Item("TYPE", [d.name.upper() for d in node.decls], uses, "", f"{name}:{start}")
+        elif isinstance(node, A.Pou):
+            end = node.end_pos.line if node.end_pos else _end_line(lines, start, f"END_{node.kind}")
+            item = Item(node.kind, [node.name.upper()], set(), "", f"{name}:{start}")
+        elif isinstance(node, A.Configuration):
+            end = _end_line(lines, start, "END_CONFIGURATION")
+            item = Item("CONFIGURATION", [node.name.upper()], set(), "", f"{name}:{start}")
+        else:
+            diags.error(node.pos, "only TYPE, POUs and CONFIGURATION can be deployed (global VAR outside a "
+                        "CONFIGURATION)")
+            continue
+        item.text = "\n".join(lines[prev_end:end]).strip("\n") + "\n"
+        prev_end = end
+        items.append(item)
+    if items and prev_end < len(lines):
+        tail = "\n".join(lines[prev_end:]).strip("\n")
+        if tail:
+            items[-1].text += tail + "\n"
+    return items
+
+
+def order(items: list[Item]) -> list[Item]:
+    """Types first, each after the types it uses (declaration order otherwise), then the POUs by kind."""
+    for i, it in enumerate(items):
+        it.order = i
+    types = [it for it in items if it.kind == "TYPE"]
+    owner = {name: i for i, it in enumerate(types) for name in it.names}
+    for i, it in enumerate(types):
+        it.deps = {owner[u] for u in it.uses if u in owner and owner[u] != i}
+    done: list[int] = []
+    placed: set[int] = set()
+    visiting: set[int] = set()
+
+    def visit(i: int) -> None:
+        if i in placed or i in visiting:
+            return              # a cycle cannot happen between valid types; the compiler reports it
+        visiting.add(i)
+        for d in sorted(types[i].deps):
+            visit(d)
+        visiting.discard(i)
+        placed.add(i)
+        done.append(i)
+
+    for i in range(len(types)):
+        visit(i)
+    pous = sorted((it for it in items if it.kind != "TYPE"), key=lambda it: (KIND_ORDER[it.kind], it.order))
+    return [types[i] for i in done] + pous
+
+
+def bundle(src_dirs: list[Path], diags: Diagnostics) -> tuple[str, list[str]]:
+    """The deploy text and the list of source files it holds."""
+    files = collect_files([str(d) for d in src_dirs])
+    items: list[Item] = []
+    names: list[str] = []
+    for path in files:
+        name = display_name(path)
+        names.append(name)
+        items.extend(split_items(name, read_source(path), diags))
+    ordered = order(items)
+    configs = [it for it in ordered if it.kind == "CONFIGURATION"]
+    if len(configs) != 1:
+        diags.error(diags_pos(names), f"exactly one CONFIGURATION is needed (found {len(configs)})")
+    head = ["(* atc-plc for the OpenPLC runtime: generated by `plc deploy openplc` - do not edit; regenerate.",
+            "   Upload this one file in OpenPLC's Programs page. It holds every POU and TYPE of the ST sources (types",
+            "   first, each after the types it uses), the application and CONFIGURATION Config0 / RESOURCE Res0, and",
+            "   no test code. The register map is modbus_map/map.toml (docs/register-map.md).",
+            f"   {len(names)} source files, {len(ordered)} declarations. *)"]
+    body = []
+    for it in ordered:
+        body.append(f"(* ---- from {it.origin} *)")
+        body.append(it.text.rstrip("\n"))
+        body.append("")
+    return "\n".join(head) + "\n\n" + "\n".join(body), names
+
+
+def diags_pos(names: list[str]):
+    from .diagnostics import Pos
+    return Pos(names[0] if names else "<deploy>", 0, 0)
+
+
+def check_bundle(text: str, diags: Diagnostics) -> tuple[int, int]:
+    """Compile the bundle alone for OpenPLC; every error and portability warning goes to diags."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "atc_openplc.st"
+        path.write_text(text, encoding="utf-8")
+        result = compile_sources([path], target="openplc", generate=True)
+        for d in result.diags.sorted():
+            if d.pos.file.startswith("<plc>"):
+                continue
+            where = d.pos.__class__("<deploy>", d.pos.line, d.pos.col)
+            if d.severity == "error":
+                diags.error(where, d.message, d.hint)
+            elif d.severity == "warning":
+                diags.warning(where, d.message, d.hint)
+        return len(result.diags.errors), len(result.diags.warnings)
+
+
+def _map_drift(root: Path) -> list[str]:
+    """Generated files of the register map that are out of date (the deployed program must match the map)."""
+    from .map.generate import drift, load_and_check
+    map_path = root / "modbus_map" / "map.toml"
+    if not map_path.is_file():
+        return []
+    diags = Diagnostics()
+    loaded = load_and_check(map_path, diags)
+    if loaded is None or diags.has_errors():
+        return [f"{map_path}: the register map has errors (plc map check)"]
+    return [f"{rel}: out of date with the register map (plc map generate)" for rel in drift(loaded, Diagnostics())]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="plc deploy", description="Bundle the application for another runtime.")
+    sub = p.add_subparsers(dest="target", metavar="{openplc}")
+    sub.required = True
+    o = sub.add_parser("openplc", help="one self-contained ST file for an OpenPLC runtime upload",
+                       description="Write st_src/ (library, generated tables, application, CONFIGURATION) as one "
+                                   "ST file an OpenPLC runtime accepts as an upload, checked with --target openplc.")
+    o.add_argument("--out", required=True, type=Path, metavar="FILE.st", help="the file to write")
+    o.add_argument("--src", type=Path, action="append", metavar="DIR",
+                   help="ST source directory (default: st_src/ of the project; repeatable)")
+    o.add_argument("-q", "--quiet", action="store_true", help="print errors only")
+    return p
+
+
+def main(argv: list[str]) -> int:
+    from .testrunner import project_root
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    root = project_root()
+    src = args.src or ([root / "st_src"] if root else [])
+    if not src or not all(d.is_dir() for d in src):
+        print("plc deploy: error: no ST source directory (give --src DIR or run inside the project)",
+              file=sys.stderr)
+        return EXIT_USAGE
+    if root is not None and not args.src:
+        stale = _map_drift(root)
+        if stale:
+            for line in stale:
+                print(f"plc deploy: error: {line}", file=sys.stderr)
+            return EXIT_FINDINGS
+    diags = Diagnostics()
+    text, names = bundle(src, diags)
+    n_err, n_warn = (0, 0)
+    if not diags.has_errors():
+        n_err, n_warn = check_bundle(text, diags)
+    for d in diags.sorted():
+        if not args.quiet or d.severity == "error":
+            print(d.render(), file=sys.stderr)
+    if diags.has_errors() or diags.warnings:
+        print(f"plc deploy: nothing written: {len(diags.errors)} error(s), {len(diags.warnings)} warning(s) "
+              "(OpenPLC's MATIEC would reject or mishandle what our compiler warns about)", file=sys.stderr)
+        return EXIT_FINDINGS
+    try:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = args.out.with_name(args.out.name + ".tmp")
+        tmp.write_text(text, encoding="utf-8", newline="\n")
+        tmp.replace(args.out)
+    except OSError as exc:
+        print(f"plc deploy: error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
+    if not args.quiet:
+        print(f"plc deploy: wrote {args.out} ({len(names)} source files, {text.count(chr(10))} lines), checked "
+              "for OpenPLC: 0 errors, 0 warnings", file=sys.stderr)
+    return EXIT_OK

@@ -1,0 +1,338 @@
+"""The CNC end of the iov2 protocol over the register map: what LinuxCNC's iov2 does, for `plc host`.
+
+Every handshake is four-phase (SPEC section 2): numbers are written before the request bit rises; the
+request is held until its ack rises, then dropped; the next request waits until that ack has dropped.
+A rising ToolchangerFault is answered at any time, in every wait, as iov2 does: the reason is read, the
+host's fault latch (ToolchangerFaulted) is set, ToolchangerFaultAck follows the fault line.  What a fault
+means for an M6 follows LinuxCNC: the change is aborted (emc-abort, reason 101); reason > 0 is a soft fault
+(the program continues without the change), reason <= 0 aborts the program (< 0 with the operator error
+"toolchanger error N").  A prepare is not ended by a fault: the PLC still answers it.
+
+The PLC must stay alive: PlcAlive or PlcHeartbeat must change at least every [link] plc_timeout_ms, else
+the link counts as lost.  A background thread changes HostHeartbeat every host_heartbeat_period_ms.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+from ..map.model import RegisterMap
+from .modbus import LinkError, ModbusClient
+from .tags import Tags
+
+# emc-reason values LinuxCNC uses (SPEC section 2)
+REASON_TASK_ABORT = 8
+REASON_MOTION_OR_IO_ERROR = 3
+REASON_ABORT_BY_TOOLCHANGER_FAULT = 101
+
+WATCH = ("ToolPrepared", "ToolChanged", "StartChangeAck", "EmcAbortAck", "ToolchangerFault", "PlcReady",
+         "CarouselHomed", "ChangerBusy", "HostLinkOk", "PlcAlive", "ToolchangerReason", "PlcHeartbeat",
+         "IovState", "ChangerState", "FaultReason", "ToolInSpindle", "CurrentPocket")
+
+
+class HostError(Exception):
+    """A command could not complete (timeout, lost link, refused); the message says why."""
+
+
+class LinkLost(HostError):
+    pass
+
+
+@dataclass
+class Outcome:
+    ok: bool                  # the program would continue (completed, or skipped by a soft fault)
+    text: str
+    reason: int = 0           # toolchanger reason of a fault that ended the command, 0 if none
+    changed: bool = False
+
+
+@dataclass
+class Timeouts:
+    request: float = 60.0     # a prepare or change until its ack
+    ack_drop: float = 5.0     # an ack until it drops after the request dropped
+    abort: float = 10.0       # emc-abort until emc-abort-ack
+    link: float = 10.0        # start-up: until the PLC reports the host link up
+
+
+@dataclass
+class Session:
+    rmap: RegisterMap
+    client: ModbusClient
+    say: Callable[[str], None] = print
+    timeouts: Timeouts = field(default_factory=Timeouts)
+    start_change: bool = True
+    poll_interval: float = 0.01
+    tags: Tags = field(init=False)
+    faulted: bool = False               # the host's latch, as iov2's toolchanger-faulted
+    fault_reason: int = 0
+    tool_number: int = 0                # tool in the spindle as the host knows it (iov2 tool-number)
+    prepared: tuple[int, int] | None = None
+    _fault_acked: bool = False
+    _new_fault: int | None = None
+    _beat: int = 0
+    _beat_error: Exception | None = None
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _thread: threading.Thread | None = None
+    _alive: tuple = ()
+    _alive_at: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.tags = Tags(self.rmap, self.client)
+        self.watch = tuple(n for n in WATCH if self.tags.has(n))
+
+    # ---------------------------------------------------------------- start / stop --
+    def start(self) -> dict:
+        """Restore the host's view from the PLC, start the heartbeat, wait for the PLC to see the link."""
+        s = self.tags.read(*self.watch)
+        self.tool_number = int(s.get("ToolInSpindle", 0))
+        self.faulted = bool(self.tags.get("ToolchangerFaulted")) if self.tags.has("ToolchangerFaulted") else False
+        self.fault_reason = int(s.get("FaultReason", 0)) if self.faulted else 0
+        restore = {"ToolNumber": self.tool_number}
+        if self.tags.has("HostToolRestore"):
+            restore["HostToolRestore"] = self.tool_number
+        self.tags.write(**restore)
+        self._beat = int(self.tags.get(self.rmap.link.host_heartbeat))
+        self._thread = threading.Thread(target=self._heartbeat, name="host-heartbeat", daemon=True)
+        self._thread.start()
+        self._alive, self._alive_at = self._alive_key(s), time.monotonic()
+        if "HostLinkOk" in self.watch:
+            s = self.wait(lambda s: s["HostLinkOk"], self.timeouts.link, "the PLC to see the host heartbeat "
+                          "(HostLinkOk)")
+        return s
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+
+    def _heartbeat(self) -> None:
+        period = self.rmap.link.host_heartbeat_period_ms / 1000.0 / 2
+        name = self.rmap.link.host_heartbeat
+        while not self._stop.wait(period):
+            self._beat = (self._beat + 1) & 0xFFFF
+            try:
+                self.tags.write(**{name: self._beat})
+            except Exception as exc:          # reported by the next poll of the command loop
+                self._beat_error = exc
+                return
+
+    # ------------------------------------------------------------------- polling --
+    def _alive_key(self, s: dict) -> tuple:
+        return (s.get("PlcAlive"), s.get("PlcHeartbeat"))
+
+    def poll(self) -> dict:
+        """One look at the PLC: the link checks and the fault handshake; returns the watched values."""
+        if self._beat_error is not None:
+            raise LinkLost(f"host heartbeat could not be written: {self._beat_error}")
+        try:
+            s = self.tags.read(*self.watch)
+        except LinkError as exc:
+            raise LinkLost(str(exc)) from None
+        now = time.monotonic()
+        key = self._alive_key(s)
+        if key != self._alive:
+            self._alive, self._alive_at = key, now
+        elif now - self._alive_at > self.rmap.link.plc_timeout_ms / 1000.0:
+            raise LinkLost(f"the PLC stopped: PlcAlive and PlcHeartbeat unchanged for more than "
+                           f"{self.rmap.link.plc_timeout_ms} ms (program stopped or faulted?)")
+        self._fault_step(s)
+        return s
+
+    def _fault_step(self, s: dict) -> None:
+        if s["ToolchangerFault"] and not self._fault_acked:
+            reason = int(s["ToolchangerReason"])
+            self.faulted, self.fault_reason, self._new_fault = True, reason, reason
+            self.tags.write(ToolchangerFaulted=True)
+            self.tags.write(ToolchangerFaultAck=True)
+            self._fault_acked = True
+            self.say(f"toolchanger fault {reason}: {self.reason_text(reason)} ({self.severity(reason)})")
+        elif not s["ToolchangerFault"] and self._fault_acked:
+            self.tags.write(ToolchangerFaultAck=False)
+            self._fault_acked = False
+
+    def take_fault(self) -> int | None:
+        """The reason of a fault reported since the last call, or None."""
+        reason, self._new_fault = self._new_fault, None
+        return reason
+
+    def wait(self, cond: Callable[[dict], bool], timeout: float, what: str,
+             stop_on_fault: bool = False) -> dict:
+        """Poll until cond(values) holds; HostError on timeout; with stop_on_fault, return early on a new fault
+        (the caller sees it with take_fault)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            s = self.poll()
+            if cond(s):
+                return s
+            if stop_on_fault and self._new_fault is not None:
+                return s
+            if time.monotonic() > deadline:
+                raise HostError(f"timeout: waited {timeout:g} s for {what} ({self.describe(s)})")
+            time.sleep(self.poll_interval)
+
+    # -------------------------------------------------------------------- texts --
+    def reason_text(self, code: int) -> str:
+        for r in self.rmap.reasons:
+            if r.code == code:
+                return r.text
+        return "unknown reason"
+
+    @staticmethod
+    def severity(code: int) -> str:
+        return "hard: the program aborts" if code < 0 else "soft: the program continues without the change" \
+            if code > 0 else "reason 0: the program aborts"
+
+    def describe(self, s: dict) -> str:
+        keys = [k for k in ("IovState", "ChangerState", "ChangerBusy", "FaultReason", "PlcReady", "HostLinkOk")
+                if k in s]
+        return ", ".join(f"{k} {int(s[k]) if not isinstance(s[k], bool) else s[k]}" for k in keys)
+
+    # ----------------------------------------------------------------- commands --
+    def prepare(self, tool: int, pocket: int) -> Outcome:
+        """T word: tool-prep-number/pocket, then tool-prepare until tool-prepared (faults do not end it)."""
+        t0 = time.monotonic()
+        self.wait(lambda s: not s["ToolPrepared"], self.timeouts.ack_drop, "tool-prepared of the last prepare to drop")
+        self.tags.write(ToolPrepNumber=tool, ToolPrepPocket=pocket)
+        self.tags.write(ToolPrepare=True)
+        try:
+            self.wait(lambda s: s["ToolPrepared"], self.timeouts.request, f"tool-prepared for T{tool}")
+        except HostError:
+            self.tags.write(ToolPrepare=False)
+            raise
+        self.tags.write(ToolPrepare=False)
+        self.wait(lambda s: not s["ToolPrepared"], self.timeouts.ack_drop, "tool-prepared to drop")
+        self.prepared = (tool, pocket)
+        return Outcome(True, f"T{tool}: prepared (pocket {pocket}) in {time.monotonic() - t0:.2f} s")
+
+    def change(self) -> Outcome:
+        """M6: start-change, then tool-change until tool-changed; a fault aborts it the way LinuxCNC does."""
+        t0 = time.monotonic()
+        if self.prepared is None or self.prepared[0] == self.tool_number:
+            return Outcome(True, f"M6: nothing to change, tool {self.tool_number} stays in the spindle")
+        tool, _pocket = self.prepared
+        self.take_fault()
+        if self.faulted:
+            return self._fault_ends_change(self.fault_reason, refused=True)
+        if self.start_change and self.tags.has("StartChange"):
+            self.wait(lambda s: not s["StartChangeAck"], self.timeouts.ack_drop, "start-change-ack to drop")
+            self.tags.write(StartChange=True)
+            s = self.wait(lambda s: s["StartChangeAck"], self.timeouts.request, "start-change-ack",
+                          stop_on_fault=True)
+            reason = self.take_fault()
+            if reason is not None and reason <= 0 and not s["StartChangeAck"]:
+                return self._abort_for_fault(reason, REASON_MOTION_OR_IO_ERROR)
+            self.tags.write(StartChange=False)
+            self.wait(lambda s: not s["StartChangeAck"], self.timeouts.ack_drop, "start-change-ack to drop")
+            if reason is not None:
+                return self._fault_ends_change(reason, refused=False)
+        self.wait(lambda s: not s["ToolChanged"], self.timeouts.ack_drop, "tool-changed of the last change to drop")
+        self.tags.write(ToolNumber=self.tool_number)
+        self.tags.write(ToolChange=True)
+        try:
+            s = self.wait(lambda s: s["ToolChanged"], self.timeouts.request, f"tool-changed for tool {tool}",
+                          stop_on_fault=True)
+        except HostError as exc:
+            self._abort(REASON_TASK_ABORT)
+            raise HostError(f"{exc}; the change was aborted (emc-abort {REASON_TASK_ABORT})") from None
+        reason = self.take_fault()
+        if not s["ToolChanged"] and reason is not None:
+            return self._fault_ends_change(reason, refused=False)
+        self.tags.write(ToolChange=False)
+        self.wait(lambda s: not s["ToolChanged"], self.timeouts.ack_drop, "tool-changed to drop")
+        self.tool_number, self.prepared = tool, None
+        self.tags.write(ToolNumber=tool)
+        plc_tool = int(self.tags.get("ToolInSpindle"))
+        text = f"M6: tool {tool} in spindle after {time.monotonic() - t0:.2f} s"
+        if plc_tool != tool:
+            return Outcome(False, text + f", but the PLC reports tool {plc_tool}", changed=True)
+        return Outcome(True, text, changed=True)
+
+    def _fault_ends_change(self, reason: int, refused: bool) -> Outcome:
+        """LinuxCNC: an M6 meeting a fault is aborted with reason 101; then the reason decides for the program."""
+        self._abort(REASON_ABORT_BY_TOOLCHANGER_FAULT)
+        what = "refused: the toolchanger is faulted" if refused else "aborted by a toolchanger fault"
+        if reason > 0:
+            return Outcome(True, f"M6 {what} ({reason}: {self.reason_text(reason)}); soft fault: the change is "
+                           f"skipped, the program continues (#5600 = 1, #5601 = {reason})", reason)
+        if reason == 0:
+            self._abort(REASON_MOTION_OR_IO_ERROR)
+            return Outcome(False, f"M6 {what} with reason 0: the program aborts", reason)
+        self._abort(REASON_MOTION_OR_IO_ERROR)
+        return Outcome(False, f"M6 {what}: toolchanger error {reason}: {self.reason_text(reason)}", reason)
+
+    def _abort_for_fault(self, reason: int, emc_reason: int) -> Outcome:
+        self._abort(emc_reason)
+        return Outcome(False, f"M6 aborted at start-change: toolchanger error {reason}: {self.reason_text(reason)}",
+                       reason)
+
+    def _abort(self, emc_reason: int) -> None:
+        """emc-abort: reason first, then emc-abort, then the requests drop; held until emc-abort-ack."""
+        self.wait(lambda s: not s["EmcAbortAck"], self.timeouts.ack_drop, "emc-abort-ack of the last abort to drop")
+        self.tags.write(EmcReason=emc_reason)
+        self.tags.write(EmcAbort=True)
+        drop = {n: False for n in ("ToolPrepare", "ToolChange", "StartChange") if self.tags.has(n)}
+        self.tags.write(**drop)
+        try:
+            self.wait(lambda s: s["EmcAbortAck"], self.timeouts.abort, f"emc-abort-ack (reason {emc_reason})")
+        finally:
+            self.tags.write(EmcAbort=False)
+        self.wait(lambda s: not s["EmcAbortAck"], self.timeouts.ack_drop, "emc-abort-ack to drop")
+        self.prepared = None
+
+    def abort(self, emc_reason: int = REASON_TASK_ABORT) -> Outcome:
+        self._abort(emc_reason)
+        return Outcome(True, f"abort (emc-reason {emc_reason}) acknowledged by the PLC")
+
+    def clear(self) -> Outcome:
+        """Operator clear: the host's latch drops and ClearFault pulses (the PLC clears on its rising edge)."""
+        # The PLC's latch first: a host latch dropping while the PLC is still faulted makes it report again.
+        self.tags.write(ClearFault=False)
+        self.tags.write(ClearFault=True)
+        try:
+            s = self.wait(lambda s: s["FaultReason"] == 0 and not s["ToolchangerFault"], 1.0,
+                          "the PLC to clear its fault")
+        except HostError:
+            s = self.poll()
+        finally:
+            self.tags.write(ClearFault=False)
+        if s["FaultReason"] == 0:
+            self.faulted, self.fault_reason = False, 0
+            self.tags.write(ToolchangerFaulted=False)
+        if s["FaultReason"] != 0:
+            reason = int(s["FaultReason"])
+            return Outcome(False, f"clear: the PLC keeps fault {reason}: {self.reason_text(reason)} "
+                           "(is its cause still there?)", reason)
+        return Outcome(True, "clear: no fault")
+
+    def home(self) -> Outcome:
+        t0 = time.monotonic()
+        self.tags.write(HomeRequest=False)
+        self.tags.write(HomeRequest=True)
+        try:
+            self.wait(lambda s: s["ChangerBusy"] or not s["CarouselHomed"], 1.0, "homing to start")
+            s = self.wait(lambda s: not s["ChangerBusy"], self.timeouts.request, "homing to end")
+        finally:
+            self.tags.write(HomeRequest=False)
+        if not s["CarouselHomed"]:
+            return Outcome(False, f"home: the carousel is not homed ({self.describe(s)})")
+        return Outcome(True, f"home: carousel homed in {time.monotonic() - t0:.2f} s")
+
+    def status(self) -> list[str]:
+        s = self.poll()
+        names = {r.code: r.name for r in self.rmap.reasons}
+        lines = [
+            f"tool in spindle {s.get('ToolInSpindle')}  (host: {self.tool_number})   pocket at the change position "
+            f"{s.get('CurrentPocket')}",
+            f"PlcReady {s.get('PlcReady')}  HostLinkOk {s.get('HostLinkOk')}  CarouselHomed {s.get('CarouselHomed')}  "
+            f"ChangerBusy {s.get('ChangerBusy')}",
+            f"IovState {s.get('IovState')}  ChangerState {s.get('ChangerState')}",
+        ]
+        reason = int(s.get("FaultReason", 0))
+        fault = f"{reason} {names.get(reason, '?')}: {self.reason_text(reason)}" if reason else "none"
+        lines.append(f"PLC fault: {fault}   host fault latch: "
+                     f"{f'set ({self.fault_reason})' if self.faulted else 'clear'}")
+        if self.prepared:
+            lines.append(f"prepared: tool {self.prepared[0]} pocket {self.prepared[1]}")
+        return lines

@@ -1,0 +1,167 @@
+"""System tests: `plc run` with the real application and the simulated carousel, driven over Modbus/TCP by
+`plc host` (separate processes, as an integrator runs them).  Loopback only; every wait is bounded."""
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from plc.host.modbus import ModbusClient
+from plc.host.tags import Tags, load_map
+
+REPO = Path(__file__).resolve().parents[2]
+RMAP = load_map(REPO / "modbus_map" / "map.toml")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Plc:
+    """`plc run st_src --config configs/runtime.toml` on a free port with its own retain file."""
+
+    def __init__(self, tmp: Path):
+        self.tmp, self.port, self.proc = tmp, free_port(), None
+        self.log = tmp / "plc.log"
+
+    def start(self, timeout: float = 180.0) -> None:
+        cmd = [sys.executable, "-m", "plc.cli", "run", str(REPO / "st_src"), "--config",
+               str(REPO / "configs" / "runtime.toml"), "--port", str(self.port), "--retain",
+               str(self.tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")]
+        offset = self.log.stat().st_size if self.log.exists() else 0
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen(cmd, cwd=REPO / "plc", stdout=log, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise AssertionError(f"plc run exited {self.proc.returncode}:\n{self.log.read_text()[-3000:]}")
+            if f"listening on 127.0.0.1:{self.port}" in self.log.read_text(errors="replace")[offset:]:
+                return
+            time.sleep(0.1)
+        raise AssertionError(f"plc run did not listen within {timeout} s:\n{self.log.read_text()[-3000:]}")
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+
+    def host(self, *words: str, timeout: float = 90.0) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "plc.cli", "host", "--port", str(self.port), *words]
+        return subprocess.run(cmd, cwd=REPO / "plc", capture_output=True, text=True, timeout=timeout)
+
+    def tags(self) -> tuple[ModbusClient, Tags]:
+        client = ModbusClient("127.0.0.1", self.port)
+        client.connect()
+        return client, Tags(RMAP, client)
+
+
+@pytest.fixture(scope="module")
+def plc(tmp_path_factory):
+    p = Plc(tmp_path_factory.mktemp("plc"))
+    p.start()
+    yield p
+    p.stop()
+
+
+def ok(result: subprocess.CompletedProcess) -> str:
+    assert result.returncode == 0, f"exit {result.returncode}\n{result.stdout}\n{result.stderr}"
+    return result.stdout
+
+
+def m6_seconds(out: str) -> float:
+    return float(re.search(r"M6: tool \d+ in spindle after ([0-9.]+) s", out).group(1))
+
+
+def test_t5_m6_changes_the_tool_and_prints_it(plc):
+    out = ok(plc.host("clear", "T5 M6"))
+    assert out.splitlines()[-1] == "tool 5 in spindle"
+    client, tags = plc.tags()
+    with client:
+        assert tags.get("ToolInSpindle") == 5
+        assert tags.get("PocketTool5") == 0
+    print(f"M6 T5 (empty spindle, Get Tool only): {m6_seconds(out):.2f} s")
+
+
+def test_a_change_puts_the_old_tool_back_into_its_pocket(plc):
+    ok(plc.host("T5 M6"))
+    out = ok(plc.host("T3 M6"))
+    assert out.splitlines()[-1] == "tool 3 in spindle"
+    client, tags = plc.tags()
+    with client:
+        values = tags.read("ToolInSpindle", "PocketTool5", "PocketTool3", "FaultReason")
+    assert values == {"ToolInSpindle": 3, "PocketTool5": 5, "PocketTool3": 0, "FaultReason": 0}
+    print(f"M6 T5 -> T3 (Put Tool + Get Tool): {m6_seconds(out):.2f} s")
+
+
+def test_t0_unloads_and_the_same_tool_is_no_change(plc):
+    ok(plc.host("T2 M6"))
+    out = ok(plc.host("T2 M6"))
+    assert "nothing to change" in out or "M6: tool 2" in out
+    assert ok(plc.host("T0 M6")).splitlines()[-1] == "tool 0 in spindle"
+
+
+def test_a_pocket_outside_the_carousel_is_a_soft_fault_and_clear_recovers(plc):
+    result = plc.host("T0 M6", "T60 M6")
+    out = result.stdout
+    assert result.returncode == 3, out + result.stderr
+    assert "soft fault" in out and "#5601 = 106" in out
+    assert out.splitlines()[-1] == "tool 0 in spindle"
+    assert "clear: no fault" in ok(plc.host("clear"))
+    assert ok(plc.host("T4 M6")).splitlines()[-1] == "tool 4 in spindle"
+
+
+def test_estop_during_a_change_is_a_hard_fault_the_host_reports_and_exits_1(plc):
+    ok(plc.host("clear", "T1 M6"))
+    client, tags = plc.tags()
+    with client:
+        def press() -> None:          # open the simulated E-stop chain once the change runs
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and not tags.get("ChangerBusy"):
+                time.sleep(0.01)
+            tags.write(SimEStop=True)
+        presser = threading.Thread(target=press)
+        presser.start()
+        result = plc.host("T6 M6")
+        presser.join(35)
+        tags.write(SimEStop=False)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "toolchanger error -101" in result.stdout
+    out = ok(plc.host("clear"))
+    assert "clear: no fault" in out
+    assert ok(plc.host("T6 M6")).splitlines()[-1] == "tool 6 in spindle"
+
+
+def test_abort_and_status(plc):
+    out = ok(plc.host("abort", "status"))
+    assert "acknowledged by the PLC" in out and "tool in spindle" in out
+
+
+def test_the_tool_in_the_spindle_survives_a_restart_of_the_plc(tmp_path):
+    p = Plc(tmp_path)
+    p.start()
+    try:
+        ok(p.host("T5 M6"))
+        time.sleep(0.5)                       # the retain writer saves within 200 ms of the change
+    finally:
+        p.stop()
+    p.start()
+    try:
+        out = ok(p.host("status"))
+        assert "connected to 127.0.0.1" in out and ": tool 5 in spindle" in out.splitlines()[0]
+        assert ok(p.host("T2 M6")).splitlines()[-1] == "tool 2 in spindle"
+    finally:
+        p.stop()
