@@ -55,7 +55,8 @@ def cmd_run(args) -> int:
     if root is not None and not args.paths:
         from . import machine
         cfg = root / machine.DEFAULT_CONFIG
-        if cfg.exists() and machine.check_and_generate(cfg, root / machine.DEFAULT_OUT, write=False) != 0:
+        if cfg.exists() and machine.check_and_generate(cfg, root / machine.DEFAULT_OUT, write=False,
+                                                       label=machine.DEFAULT_CONFIG.as_posix()) != 0:
             print("plc run: fix the machine configuration first (plc machine check / generate)", file=sys.stderr)
             return 1
     res = compile_sources(paths, portability=False)

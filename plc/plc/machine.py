@@ -217,12 +217,14 @@ def report(ck: Checker) -> None:
         print(f"{ck.path}:{p.line}: error: {p.message}", file=sys.stderr)
 
 
-def check_and_generate(config: Path, out: Path, write: bool) -> int:
+def check_and_generate(config: Path, out: Path, write: bool, label: str | None = None) -> int:
+    """Check `config`; write `out` (write=True) or fail when it differs (drift). `label` names the source in the
+    generated header (default: the path as given), so the file is the same from wherever it is generated."""
     data, ck = load(config)
     if ck.problems:
         report(ck)
         return 1
-    text = generate(data, config.as_posix())
+    text = generate(data, label or config.as_posix())
     if write:
         out.parent.mkdir(parents=True, exist_ok=True)
         if not out.exists() or out.read_text() != text:
