@@ -89,12 +89,12 @@ def _ini() -> configparser.ConfigParser:
     return ini
 
 
-def test_mb2hal_writes_numbers_then_bits_then_reads_numbers_then_bits():
+def test_mb2hal_writes_numbers_then_bits_then_reads_bits_then_numbers():
     ini = _ini()
     n = int(ini["MB2HAL_INIT"]["TOTAL_TRANSACTIONS"])
     codes = [ini[f"TRANSACTION_{i:02d}"]["MB_TX_CODE"] for i in range(n)]
     rank = {"fnct_16_write_multiple_registers": 0, "fnct_15_write_multiple_coils": 1,
-            "fnct_03_read_holding_registers": 2, "fnct_01_read_coils": 3}
+            "fnct_01_read_coils": 2, "fnct_03_read_holding_registers": 3}
     assert [rank[c] for c in codes] == sorted(rank[c] for c in codes)
     assert codes.count("fnct_15_write_multiple_coils") == 1          # each direction's bits in one transaction
     assert ini["TRANSACTION_00"]["TCP_IP"] == "127.0.0.1" and ini["TRANSACTION_00"]["TCP_PORT"] == "5020"

@@ -134,7 +134,8 @@ def _linuxcnc(rmap: RegisterMap) -> list[str]:
         "",
         "`configs/linuxcnc/atc_mb2hal.ini` and `configs/linuxcnc/atc_iov2.hal` connect iov2's pins to the map.",
         f"mb2hal polls {lc.host}:{lc.port} at {format(lc.update_rate_hz, 'g')} passes per second, these "
-        "transactions in this order (numbers before bits, each direction's bits in one request):",
+        "transactions in this order (the host's numbers before its bits, the PLC's bits before its numbers, each "
+        "direction's bits in one request):",
         "",
         "| # | HAL_TX_NAME | function | first | signals |",
         "|---|---|---|---|---|",

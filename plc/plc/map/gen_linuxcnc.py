@@ -1,13 +1,14 @@
 """configs/linuxcnc/atc_mb2hal.ini and atc_iov2.hal: LinuxCNC 2.9 (iov2 + mb2hal) on the register map.
 
 mb2hal (SPEC section 3) runs the transactions of a link strictly in INI order, round-robin, and re-sends
-writes every pass.  The plan, numbers before bits in both directions:
+writes every pass.  The plan: the host's numbers are written before its bits, the PLC's numbers are read
+after its bits (so a number is never older than the bit read with it; the PLC sets both in one scan):
 
     atc-words-out   FC16  host_to_plc registers wired to LinuxCNC (one transaction per contiguous run)
     atc-bits-out    FC15  host_to_plc coils wired to LinuxCNC: all in ONE transaction, so one request
                           carries every request bit and the runtime applies it between two scans
-    atc-words-in    FC03  plc_to_host registers (unused registers in a run are read as spare pins)
     atc-bits-in     FC01  plc_to_host coils
+    atc-words-in    FC03  plc_to_host registers (unused registers in a run are read as spare pins)
 
 Ordering alone cannot keep a number and its request bit together: iov2 may change both between the FC16 and
 the FC15 of one pass.  So the HAL file delays the rising edge of each [linuxcnc] settle bit by settle_s (at
@@ -68,14 +69,14 @@ def plan(rmap: RegisterMap, diags: Diagnostics | None = None) -> list[Tx]:
     if bits_out:
         _check_bit_block(rmap, bits_out, diags)
         txs.append(_tx("atc-bits-out", "fnct_15_write_multiple_coils", bits_out, False))
-    words_in = sorted((s for s in wired if s.direction == "plc_to_host" and s.type != "BOOL"),
-                      key=lambda s: s.address)
-    for i, run in enumerate(_runs(words_in, gap=READ_GAP, limit=MAX_READ_REGISTERS)):
-        txs.append(_tx(_numbered("atc-words-in", i), "fnct_03_read_holding_registers", run, True))
     bits_in = sorted((s for s in wired if s.direction == "plc_to_host" and s.type == "BOOL"),
                      key=lambda s: s.address)
     for i, run in enumerate(_runs(bits_in, gap=READ_GAP, limit=MAX_READ_BITS)):
         txs.append(_tx(_numbered("atc-bits-in", i), "fnct_01_read_coils", run, True))
+    words_in = sorted((s for s in wired if s.direction == "plc_to_host" and s.type != "BOOL"),
+                      key=lambda s: s.address)
+    for i, run in enumerate(_runs(words_in, gap=READ_GAP, limit=MAX_READ_REGISTERS)):
+        txs.append(_tx(_numbered("atc-words-in", i), "fnct_03_read_holding_registers", run, True))
     for tx in txs:
         for _name, sig in tx.pins:
             if sig is not None and len(tx.pin(rmap, sig)) > HAL_NAME_LEN:
@@ -131,7 +132,8 @@ def mb2hal_ini(rmap: RegisterMap) -> str:
         "# mb2hal (LinuxCNC 2.9) configuration of the atc-plc register map; loaded by atc_iov2.hal:",
         f"#     loadusr -W {lc.component} config=atc_mb2hal.ini",
         "# Transactions run in this order every pass: host numbers (FC16), host bits (FC15, all in one),",
-        "# PLC numbers (FC03), PLC bits (FC01). Pins: <component>.<HAL_TX_NAME>.<signal>.int|float|bit",
+        "# PLC bits (FC01), PLC numbers (FC03: never older than the bits). Pins:",
+        "# <component>.<HAL_TX_NAME>.<signal>.int|float|bit",
         "# (VERSION 1.1 pin names). The runtime refuses writes outside the map's host-writable ranges.",
         "",
         "[MB2HAL_INIT]",
