@@ -24,6 +24,14 @@ from .session import HostError, Session, Timeouts
 from .tags import MapError, load_map
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_SKIPPED = 0, 1, 2, 3
+PROMPT_HELP = """  Tn            prepare tool n (pocket n, or the tool table's)
+  M6            change to the prepared tool
+  T5 M6         both; several commands per line run in order
+  abort [N]     emc-abort with reason N (default 8, TASK_ABORT)
+  clear         clear the PLC's fault and the host's fault latch
+  home          home the carousel
+  status        tool, pocket, link, states, fault
+  quit          leave (Ctrl-D too)"""
 TOKEN = re.compile(r"^(T\d+|M0*6|ABORT|CLEAR|STATUS|HOME|HELP|QUIT|EXIT|\d+)$", re.IGNORECASE)
 
 
@@ -139,7 +147,7 @@ def interactive(session: Session, pockets: dict[int, int], say) -> int:
         if words[0].lower() in ("quit", "exit"):
             return status
         if words[0].lower() == "help":
-            say(__doc__.strip().splitlines()[2])
+            say(PROMPT_HELP)
             continue
         try:
             status = max(status, run_commands(session, words, pockets, say))
