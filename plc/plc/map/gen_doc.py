@@ -148,6 +148,12 @@ def _linuxcnc(rmap: RegisterMap) -> list[str]:
         "",
         f"- Rising edges of {settle} are delayed {format(lc.settle_s, 'g')} s in HAL, so the numbers that go",
         "  with them (tool-prep-number and -pocket, toolchanger-reason) always arrive first.",
+    ]
+    if lc.settle_fall:
+        out += [f"- Falling edges of {', '.join(f'`{n}`' for n in lc.settle_fall)} are delayed as much: when the "
+                "operator clears a fault, the PLC sees `ClearFault` before iov2's latch drops (it would report the "
+                "fault it is clearing again)."]
+    out += [
         "- INT registers read by FC03 arrive unsigned; a `lincurve` maps 32768..65535 to -32768..-1 before",
         "  `conv_float_s32` (so a reason -201, read as 65335, reaches iov2 as -201).",
         f"- No `{rmap.link.plc_alive}` edge for {rmap.link.plc_timeout_ms} ms drives `iocontrol.0.emc-enable-in` "
