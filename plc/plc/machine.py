@@ -69,7 +69,7 @@ SCHEMA = {
         "invert_home": (bool,), "invert_pocket": (bool,), "invert_on": (bool,), "invert_plus_dir": (bool,),
         "invert_minus_dir": (bool,), "invert_code": (list, bool), "pocket_codes": (list, int),
     },
-    "changer": {"brake_release_ms": (int, 0, 10000), "host_timeout_ms": (int, 100, 60000), "auto_home": (bool,)},
+    "changer": {"brake_release_ms": (int, 0, 10000), "auto_home": (bool,)},
     "simulation": {"pocket_time_ms": (int, 1, 10000), "coast_ms": (int, 0, 10000), "skew_scans": (int, 0, 100),
                    "arm_travel_ms": (int, 1, 60000), "collet_ms": (int, 1, 60000), "brake_ms": (int, 0, 60000)},
 }
@@ -176,7 +176,6 @@ def generate(data: dict, source: str) -> str:
            "    Plant : ST_CarouselPlantConfig;     (* simulated carousel mechanics *)",
            "    ChangerPlant : ST_ChangerPlantConfig; (* simulated arm, collet and brake *)",
            "    BrakeReleaseTime : TIME;            (* brake released this long before a pre-positioning turn *)",
-           "    HostTimeout : TIME;                 (* the host heartbeat must change at least this often *)",
            "    AutoHome : BOOL;                    (* run the Home sequence by itself after power-up *)",
            "END_VAR",
            f"Rotary.pockets := {car['pockets']};",
@@ -206,7 +205,6 @@ def generate(data: dict, source: str) -> str:
             f"ChangerPlant.colletTime := {ms(sim.get('collet_ms', 100))};",
             f"ChangerPlant.brakeTime := {ms(sim.get('brake_ms', 50))};",
             f"BrakeReleaseTime := {ms(chg.get('brake_release_ms', 500))};",
-            f"HostTimeout := {ms(chg.get('host_timeout_ms', 2000))};",
             f"AutoHome := {st_bool(chg.get('auto_home', True))};",
             "END_FUNCTION_BLOCK"]
     return "\n".join(out) + "\n"
