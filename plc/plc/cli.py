@@ -6,6 +6,7 @@ environment problems.  User errors never print a Python traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -66,6 +67,10 @@ def cmd_run(args) -> int:
         return 1
     if not res.program.configs:
         raise UserError("the sources have no CONFIGURATION: nothing to run")
+    if args.config is None and root is not None and not args.paths and (root / "configs" / "runtime.toml").exists():
+        # the project's run configuration (generated from the register map: host-writable ranges, retained %MW)
+        args.config = root / "configs" / "runtime.toml"
+        print(f"plc run: using {args.config}", file=sys.stderr)
     c_file = Path(args.build_dir) / "program" / "program.c"
     c_file.parent.mkdir(parents=True, exist_ok=True)
     if not c_file.exists() or c_file.read_text() != res.c_text:
@@ -116,21 +121,21 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
+# Subcommands with their own argument parsers (each module has main(argv) -> int).
+DELEGATED = {"seq": ".seq.cli", "map": ".map.cli", "host": ".host.cli", "deploy": ".deploy"}
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] == "seq":
-        from .seq.cli import main as seq_main
-        return seq_main(argv[1:])
-    if argv and argv[0] in ("map", "host", "deploy"):
-        from importlib import import_module
-        module = {"map": ".map.cli", "host": ".host.cli", "deploy": ".deploy"}[argv[0]]
-        return import_module(module, __package__).main(argv[1:])
-    ap = parser()
-    args = ap.parse_args(argv)
-    if not getattr(args, "func", None):
-        ap.print_help()
-        return 2
     try:
+        if argv and argv[0] in DELEGATED:
+            from importlib import import_module
+            return import_module(DELEGATED[argv[0]], __package__).main(argv[1:])
+        ap = parser()
+        args = ap.parse_args(argv)
+        if not getattr(args, "func", None):
+            ap.print_help()
+            return 2
         return args.func(args)
     except UserError as e:
         print(f"plc: error: {e}", file=sys.stderr)
@@ -139,8 +144,12 @@ def main(argv: list[str] | None = None) -> int:
         print("plc: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
+        # the reader went away (plc ... | head): stop quietly, and keep Python from complaining at exit
+        try:
+            sys.stdout = open(os.devnull, "w")
+        except OSError:
+            pass
         return 1
-
 
 if __name__ == "__main__":
     sys.exit(main())
