@@ -230,7 +230,7 @@ class Analyzer:
                 n = self.const_int(ref.length)
                 self.port(ref.pos, "STRING[n] is not supported by OpenPLC (a bare declaration crashes iec2c)",
                           "use plain STRING (126 characters)", code="portability.string-length")
-                if n is None or not (1 <= n <= T.PLC_STRING_MAX if hasattr(T, "PLC_STRING_MAX") else 1 <= n <= 126):
+                if n is None or not 1 <= n <= 126:
                     self.err(ref.length.pos, "string length must be a constant between 1 and 126")
                     return T.STRING
                 return T.StringType(n)
@@ -595,17 +595,14 @@ class Analyzer:
                         self.err(rep.pos, "repeat count must be a positive integer")
                 count += n
                 if v is not None:
-                    if isinstance(T.resolve_base(elem), T.ArrayType) and not isinstance(v, A.ArrayInit):
-                        pass
-                    self.check_init(v, elem if not (isinstance(T.resolve_base(elem), T.ArrayType)
-                                                    and not isinstance(v, A.ArrayInit)) else T.resolve_base(elem).elem)
+                    # a nested array element may be given flat, element by element
+                    flat = isinstance(T.resolve_base(elem), T.ArrayType) and not isinstance(v, A.ArrayInit)
+                    self.check_init(v, T.resolve_base(elem).elem if flat else elem)
             total = b.count()
             if isinstance(T.resolve_base(b.elem), T.ArrayType):
                 total = b.count()
             if count > total and not isinstance(T.resolve_base(b.elem), T.ArrayType):
                 self.err(init.pos, f"{count} initial values for an array of {total} elements")
-            elif len(b.dims) > 1 or isinstance(T.resolve_base(b.elem), T.ArrayType):
-                pass
             return
         if isinstance(init, A.StructInit):
             if not isinstance(b, T.StructType):
@@ -838,8 +835,6 @@ class Analyzer:
             self.err(target.pos, f"cannot {verb} EN: it is an input")
         elif isinstance(root, A.Name) and isinstance(root.sym, tuple):
             self.err(target.pos, f"cannot {verb} the enumeration value '{root.name}'")
-        elif isinstance(root, A.Name) and isinstance(root.sym, FuncSym):
-            pass
         return t
 
     def case(self, s: A.Case) -> None:
@@ -1087,8 +1082,6 @@ class Analyzer:
             self.err(e.pos, f"'{e.prefix}#' cannot prefix an integer literal")
             return T.ERROR
         if not (t.lo <= e.value <= t.hi):
-            if t.cat == "bit" or (t.cat == "int" and 0 <= e.value <= (1 << t.bits) - 1 and False):
-                pass
             self.err(e.pos, f"literal {e.value} is out of range for {t.name} ({t.lo}..{t.hi})")
         return t
 
@@ -1119,9 +1112,6 @@ class Analyzer:
             e.sym = e.name          # the POU's implicit EN input / ENO output
             return T.BOOL
         if sym is not None:
-            if sym.section == "VAR_EXTERNAL" and sym.global_sym is None and scope is not None \
-                    and scope.kind != "CONFIGURATION" and not self.prog.configs:
-                pass
             e.sym = sym
             return sym.type
         enums = self.prog.enum_values.get(e.name)
@@ -1307,8 +1297,6 @@ class Analyzer:
             if isinstance(lb, T.EnumType) and op not in ("=", "<>"):
                 self.port(e.pos, f"'{op}' on enumeration values is rejected by MATIEC", "compare with = or <>",
                           code="portability.enum-order")
-            if T.is_elem(lb, "bool") and op not in ("=", "<>"):
-                pass
             return T.BOOL
         if op in self.LOGIC:
             if not (isinstance(lb, T.Elementary) and lb.is_bit):
@@ -1526,12 +1514,9 @@ class Analyzer:
                 self.fix_literal(a.value, T.LINT if ab.cat == "int" else T.LREAL)
                 ab = T.resolve_base(a.value.ty)
             c.target = ("CONV", ab, dst)
-        elif not T.same_type(ab, src):
-            if isinstance(ab, T.LiteralType):
-                pass
-            else:
-                self.err(a.pos, f"{c.text} needs a {src.name} input, not {at}",
-                         f"use {T.resolve_base(at).name}_TO_{dst.name}" if isinstance(ab, T.Elementary) else None)
+        elif not T.same_type(ab, src) and not isinstance(ab, T.LiteralType):
+            self.err(a.pos, f"{c.text} needs a {src.name} input, not {at}",
+                     f"use {T.resolve_base(at).name}_TO_{dst.name}" if isinstance(ab, T.Elementary) else None)
         if c.func in ("TIME_TO_DINT", "DINT_TO_TIME", "TIME_TO_INT", "INT_TO_TIME", "TIME_TO_UDINT",
                       "UDINT_TO_TIME", "TIME_TO_LINT", "LINT_TO_TIME", "TIME_TO_ULINT", "ULINT_TO_TIME",
                       "TIME_TO_UINT", "UINT_TO_TIME", "TIME_TO_SINT", "SINT_TO_TIME", "TIME_TO_USINT", "USINT_TO_TIME"):
