@@ -23,8 +23,8 @@ def cmd_check(args) -> int:
     n_err, n_warn = len(res.diags.errors), len(res.diags.warnings)
     if not args.quiet:
         nfiles = len([f for f in res.files if not f.path.startswith("<plc>")])
-        print(f"checked {nfiles} file(s): {n_err} error(s), {n_warn} warning(s) "
-              f"in {time.perf_counter() - t0:.2f}s", file=sys.stderr)
+        found = f"{n_err} error(s), {n_warn} warning(s)" if n_err or n_warn else "clean"
+        print(f"checked {nfiles} file(s): {found} in {time.perf_counter() - t0:.2f}s", file=sys.stderr)
     return 1 if n_err else 0
 
 
