@@ -131,26 +131,23 @@ class Lexer:
         self.tokens.append(Token(kind, value, self.src[start:self.i], pos))
 
     def block_comment(self) -> None:
-        start = self.pos()
-        self.advance(2)
-        while self.i < len(self.src):
-            if self.peek() == "*" and self.peek(1) == ")":
-                self.advance(2)
-                return
-            self.advance()
-        self.diags.error(start, "unterminated comment", "a '(*' comment needs a closing '*)'")
+        self.skip_comment("(*", "*)")
 
     def c_comment(self) -> None:
-        start = self.pos()
-        self.diags.portable(start, "'/* */' comments are not accepted by MATIEC", "use (* ... *)",
+        self.diags.portable(self.pos(), "'/* */' comments are not accepted by MATIEC", "use (* ... *)",
                             code="portability.comment")
+        self.skip_comment("/*", "*/")
+
+    def skip_comment(self, opener: str, closer: str) -> None:
+        """Skip a comment from `opener` to the first `closer` (comments do not nest, as in MATIEC)."""
+        start = self.pos()
         self.advance(2)
         while self.i < len(self.src):
-            if self.peek() == "*" and self.peek(1) == "/":
+            if self.src.startswith(closer, self.i):
                 self.advance(2)
                 return
             self.advance()
-        self.diags.error(start, "unterminated comment", "a '/*' comment needs a closing '*/'")
+        self.diags.error(start, "unterminated comment", f"a '{opener}' comment needs a closing '{closer}'")
 
     def pragma(self) -> None:
         start = self.pos()

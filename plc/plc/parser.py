@@ -195,14 +195,18 @@ class Parser:
         self.accept_sym(";")
         return A.TypeBlock(start.pos, decls)
 
-    def type_spec(self) -> A.TypeSpec:
+    def nested(self, what: str, parse):
+        """Run `parse` one level deeper; past MAX_DEPTH report the nesting instead of exhausting the stack."""
         self.depth += 1
         try:
             if self.depth > MAX_DEPTH:
-                raise self.fail("type nested too deeply")
-            return self._type_spec()
+                raise self.fail(f"{what} nested too deeply")
+            return parse()
         finally:
             self.depth -= 1
+
+    def type_spec(self) -> A.TypeSpec:
+        return self.nested("type", self._type_spec)
 
     def _type_spec(self) -> A.TypeSpec:
         t = self.tok
@@ -296,13 +300,7 @@ class Parser:
         return A.StructSpec(start.pos, members)
 
     def initializer(self) -> A.Init:
-        self.depth += 1
-        try:
-            if self.depth > MAX_DEPTH:
-                raise self.fail("initial value nested too deeply")
-            return self._initializer()
-        finally:
-            self.depth -= 1
+        return self.nested("initial value", self._initializer)
 
     def _initializer(self) -> A.Init:
         t = self.tok
@@ -465,13 +463,7 @@ class Parser:
                 self.next()
 
     def statement(self) -> A.Stmt | None:
-        self.depth += 1
-        try:
-            if self.depth > MAX_DEPTH:
-                raise self.fail("statements nested too deeply")
-            return self._statement()
-        finally:
-            self.depth -= 1
+        return self.nested("statements", self._statement)
 
     def _statement(self) -> A.Stmt | None:
         t = self.tok
@@ -664,13 +656,7 @@ class Parser:
 
     # -- expressions -----------------------------------------------------------------------------
     def expression(self) -> A.Expr:
-        self.depth += 1
-        try:
-            if self.depth > MAX_DEPTH:
-                raise self.fail("expression nested too deeply")
-            return self.binary(1)
-        finally:
-            self.depth -= 1
+        return self.nested("expression", lambda: self.binary(1))
 
     def binop(self) -> str | None:
         t = self.tok
@@ -697,13 +683,7 @@ class Parser:
         t = self.tok
         if t.is_sym("-", "+") or t.is_kw("NOT"):
             self.next()
-            self.depth += 1
-            try:
-                if self.depth > MAX_DEPTH:
-                    raise self.fail("expression nested too deeply")
-                operand = self.unary()
-            finally:
-                self.depth -= 1
+            operand = self.nested("expression", self.unary)
             op = "NOT" if t.kind == "KEYWORD" else t.value
             if op == "-" and isinstance(operand, (A.IntLit, A.RealLit)) and operand.prefix is None \
                     and not getattr(operand, "negated", False):
