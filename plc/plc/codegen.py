@@ -951,11 +951,11 @@ class Gen:
             x = val(args[0])
             return f"(!{x})" if T.is_elem(t, "bool") else f"(({ct})~{x})"
         if n in ("GT", "GE", "EQ", "LE", "LT", "NE"):
-            cop = {"GT": ">", "GE": ">=", "EQ": "==", "LE": "<=", "LT": "<", "NE": "!="}[n]
-            at = T.resolve_base(args[0].ty)
-            if T.is_elem(at, "string"):
-                return f"(plc_str_cmp({self.ex(args[0])}, {self.ex(args[1])}) {cop} 0)"
-            return c_compare(self.ex(args[0]), cop, self.ex(args[1]))
+            # the comparison functions are the comparison operators
+            op = {"GT": ">", "GE": ">=", "EQ": "=", "LE": "<=", "LT": "<", "NE": "<>"}[n]
+            cmp = A.Binary(c.pos, op, args[0], args[1])
+            cmp.ty = T.BOOL
+            return self.x_Binary(cmp)
         if n == "LEN":
             return f"plc_len({self.ex(args[0])})"
         if n in ("LEFT", "RIGHT"):
