@@ -139,7 +139,7 @@ def test_timeout_aborts_the_change_with_a_clear_message(capsys):
 
 def test_lost_plc_heartbeat_is_reported(capsys):
     with FakePlc(ADDR, Behaviour(heartbeat=False, ack_prepare=False)) as fake:
-        status, out, err = run(fake, capsys, "T5", extra=("--timeout", "5"))
+        status, out, err = run(fake, capsys, "T5", extra=("--timeout", "60"))   # link loss shows first
     assert status == 1
     assert "the PLC stopped: PlcAlive and PlcHeartbeat unchanged" in err
 

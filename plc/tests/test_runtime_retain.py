@@ -148,9 +148,7 @@ def test_kill_9_during_retained_writes_never_loses_or_corrupts_the_last_save(tmp
     tmp = tmp_path / "plc.retain.tmp"
     rng = random.Random(9)
     trials, mid_write, last_completed = 200, 0, -1
-    deadline = time.monotonic() + 240 * h.SLOW
-    for trial in range(trials):
-        assert time.monotonic() < deadline, f"too slow: {trial} trials"
+    for trial in range(trials):                              # each start, wait and stop is bounded on its own
         saved_before = f.exists()
         rt = h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-interval", "0",
                        "--status", "off")
