@@ -213,10 +213,9 @@ static uint64_t flush_events(modbus_server_t *srv, uint64_t t, bool all)
                 next = g->last_line_ns + EVENT_WINDOW_NS;
             continue;
         }
-        char detail[sizeof g->last_detail + 4];
-        detail_text(g->last_detail, detail, sizeof detail);
-        log_msg(srv->rt->log, EVENTS[k].level, "modbus: %u more clients %s in the last %.1f s (the last: %s%s)",
-                g->held, EVENTS[k].what, (double)(t - g->last_line_ns) / 1e9, g->last_peer, detail);
+        log_msg(srv->rt->log, EVENTS[k].level, "modbus: %u more clients %s in the last %.1f s (the last: %s%s%s)",
+                g->held, EVENTS[k].what, (double)(t - g->last_line_ns) / 1e9, g->last_peer,
+                g->last_detail[0] ? ", " : "", g->last_detail);
         g->last_line_ns = t;
         g->held = 0;
     }
