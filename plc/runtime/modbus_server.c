@@ -61,6 +61,7 @@
 #define MBAP_MAX_LENGTH 254u          /* unit id + the largest PDU (253 bytes) */
 #define CLIENT_BUFFER (2u * (6u + MBAP_MAX_LENGTH))
 #define CLIENT_SNDBUF 16384           /* per-client send buffer: ~60 of the largest responses */
+#define LISTEN_BACKLOG 512           /* a connection storm overflows it later (SYN drops stall connect) */
 #define ACCEPTS_PER_ROUND 64          /* a connection storm cannot starve the served clients */
 #define EVENT_WINDOW_NS 1000000000u   /* one log line per kind per second */
 #define PEER_TEXT (INET_ADDRSTRLEN + 8)
@@ -71,6 +72,7 @@ typedef struct client {
     uint64_t connected_ns;
     uint64_t partial_since_ns;        /* when the incomplete request in buf began; 0: none */
     uint64_t unsent_since_ns;         /* when responses were first seen unsent; 0: flowing */
+    uint64_t admitted_round;          /* server loop round it was accepted in */
     uint32_t served;                  /* requests answered */
     uint8_t buf[CLIENT_BUFFER];
     char peer[PEER_TEXT];
@@ -126,6 +128,7 @@ struct modbus_server {
     client_t *clients;
     int n_clients;
     uint64_t frame_timeout_ns;
+    uint64_t round;                   /* select() rounds so far */
     uint32_t requests, exceptions, refused, dropped;
     event_gate_t gates[EV_COUNT];
 };
@@ -234,6 +237,11 @@ static void close_client(modbus_server_t *srv, client_t *c, event_kind_t why, co
     vsnprintf(detail, sizeof detail, fmt, ap);
     va_end(ap);
     note_event(srv, why, c->peer, "%s", detail);
+    if (why != EV_CLOSED && why != EV_STOPPING) {
+        /* Reset, not FIN: a hostile storm leaves no TIME_WAIT sockets behind here. */
+        struct linger abort_close = { .l_onoff = 1, .l_linger = 0 };
+        setsockopt(c->fd, SOL_SOCKET, SO_LINGER, &abort_close, sizeof abort_close);
+    }
     close(c->fd);
     c->fd = -1;
     c->len = 0;
@@ -264,16 +272,23 @@ static void refuse(modbus_server_t *srv, int fd, const char *peer, event_kind_t 
 }
 
 /* The slot a new connection may take from a suspect client, or NULL.  Suspect:
- * no request completed yet, or one half-received; the longest-suspect goes. */
-static client_t *reclaimable(modbus_server_t *srv)
+ * no request completed yet, or one half-received; the longest-suspect goes.
+ * A client accepted in this round has not been read yet: it is not a candidate,
+ * but *fresh says one exists (the caller then leaves the newcomer queued). */
+static client_t *reclaimable(modbus_server_t *srv, bool *fresh)
 {
     client_t *victim = NULL;
     uint64_t oldest = UINT64_MAX;
 
+    *fresh = false;
     for (int i = 0; i < srv->rt->opt.max_clients; i++) {
         client_t *c = &srv->clients[i];
         if (c->fd < 0)
             continue;
+        if (c->admitted_round == srv->round) {
+            *fresh = true;
+            continue;
+        }
         uint64_t since = c->partial_since_ns ? c->partial_since_ns : c->served == 0 ? c->connected_ns : 0;
         if (since != 0 && since < oldest) {
             oldest = since;
@@ -304,6 +319,7 @@ static void admit(modbus_server_t *srv, int fd, const char *peer)
         c->connected_ns = now_ns();
         c->partial_since_ns = c->unsent_since_ns = 0;
         c->served = 0;
+        c->admitted_round = srv->round;
         snprintf(c->peer, sizeof c->peer, "%s", peer);
         srv->n_clients++;
         break;
@@ -316,7 +332,11 @@ static void accept_clients(modbus_server_t *srv)
 {
     const rt_options_t *opt = &srv->rt->opt;
 
-    for (int round = 0; round < ACCEPTS_PER_ROUND; round++) {
+    for (int n = 0; n < ACCEPTS_PER_ROUND; n++) {
+        bool fresh = false;
+        if (srv->n_clients >= opt->max_clients && !reclaimable(srv, &fresh) && fresh)
+            return;                         /* read the newest first; the rest wait in the backlog */
+
         struct sockaddr_in sa;
         socklen_t salen = sizeof sa;
         char peer[PEER_TEXT], ip[INET_ADDRSTRLEN];
@@ -340,14 +360,16 @@ static void accept_clients(modbus_server_t *srv)
             continue;
         }
         if (srv->n_clients >= opt->max_clients) {
-            client_t *victim = reclaimable(srv);
+            bool fresh;
+            client_t *victim = reclaimable(srv, &fresh);
             if (!victim) {
                 char why[64];
                 snprintf(why, sizeof why, "limit of %d clients, --max-clients", opt->max_clients);
                 refuse(srv, fd, peer, EV_REFUSED_FULL, why);
                 continue;
             }
-            close_client(srv, victim, EV_RECLAIMED, "for %s; %u requests served, %zu bytes pending", peer,
+            close_client(srv, victim, EV_RECLAIMED, "for %s; connected %llu ms ago, %u requests served, %zu bytes "
+                         "pending", peer, (unsigned long long)((now_ns() - victim->connected_ns) / 1000000u),
                          victim->served, victim->len);
         }
         admit(srv, fd, peer);
@@ -596,7 +618,7 @@ static void *server_thread(void *arg)
     modbus_server_t *srv = arg;
     const int max = srv->rt->opt.max_clients;
 
-    for (;;) {
+    for (;; srv->round++) {
         fd_set rfds;
         int top = srv->listen_fd > srv->wake[0] ? srv->listen_fd : srv->wake[0];
         uint64_t t = now_ns();
@@ -700,7 +722,7 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
         destroy(srv);
         return -1;
     }
-    srv->listen_fd = modbus_tcp_listen(srv->ctx, 64);
+    srv->listen_fd = modbus_tcp_listen(srv->ctx, LISTEN_BACKLOG);
     if (srv->listen_fd < 0) {
         log_msg(rt->log, LOG_ERROR, "modbus: cannot listen on %s:%d: %s", opt->bind, opt->port,
                 modbus_strerror(errno));
