@@ -46,6 +46,7 @@
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <pthread.h>
+#include <sched.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -62,8 +63,10 @@
 #define CLIENT_BUFFER (2u * (6u + MBAP_MAX_LENGTH))
 #define CLIENT_SNDBUF 16384           /* per-client send buffer: ~60 of the largest responses */
 #define LISTEN_BACKLOG 512           /* a connection storm overflows it later (SYN drops stall connect) */
-#define ACCEPTS_PER_ROUND 64          /* a connection storm cannot starve the served clients */
+#define ACCEPTS_PER_ROUND 2           /* a connection storm cannot starve the served clients */
 #define EVENT_WINDOW_NS 1000000000u   /* one log line per kind per second */
+#define PRIORITY_BELOW_SCAN 10       /* SCHED_FIFO priority of this thread: the scan's minus this */
+#define UNSENT_POLL_NS 10000000u      /* how often a client that stopped reading is looked at */
 #define PEER_TEXT (INET_ADDRSTRLEN + 8)
 
 typedef struct client {
@@ -171,7 +174,7 @@ static bool allowed(const rt_options_t *opt, uint32_t addr)
 static void detail_text(const char *detail, char *out, size_t n)
 {
     if (detail[0])
-        snprintf(out, n, " (%s)", detail);
+        snprintf(out, n, " [%s]", detail);
     else
         out[0] = 0;
 }
@@ -216,7 +219,7 @@ static uint64_t flush_events(modbus_server_t *srv, uint64_t t, bool all)
                 next = g->last_line_ns + EVENT_WINDOW_NS;
             continue;
         }
-        log_msg(srv->rt->log, EVENTS[k].level, "modbus: %u more clients %s in the last %.1f s (the last: %s%s%s)",
+        log_msg(srv->rt->log, EVENTS[k].level, "modbus: %u more clients %s in the last %.1f s [the last: %s%s%s]",
                 g->held, EVENTS[k].what, (double)(t - g->last_line_ns) / 1e9, g->last_peer,
                 g->last_detail[0] ? ", " : "", g->last_detail);
         g->last_line_ns = t;
@@ -272,7 +275,8 @@ static void refuse(modbus_server_t *srv, int fd, const char *peer, event_kind_t 
 }
 
 /* The slot a new connection may take from a suspect client, or NULL.  Suspect:
- * no request completed yet, or one half-received; the longest-suspect goes.
+ * no request completed yet, a request half-received, or responses left unread;
+ * the longest-suspect goes.
  * A client accepted in this round has not been read yet: it is not a candidate,
  * but *fresh says one exists (the caller then leaves the newcomer queued). */
 static client_t *reclaimable(modbus_server_t *srv, bool *fresh)
@@ -289,7 +293,9 @@ static client_t *reclaimable(modbus_server_t *srv, bool *fresh)
             *fresh = true;
             continue;
         }
-        uint64_t since = c->partial_since_ns ? c->partial_since_ns : c->served == 0 ? c->connected_ns : 0;
+        uint64_t since = c->partial_since_ns ? c->partial_since_ns
+                         : c->served == 0 ? c->connected_ns
+                         : c->unsent_since_ns;
         if (since != 0 && since < oldest) {
             oldest = since;
             victim = c;
@@ -298,9 +304,10 @@ static client_t *reclaimable(modbus_server_t *srv, bool *fresh)
     return victim;
 }
 
-static void admit(modbus_server_t *srv, int fd, const char *peer)
+/* Socket options of a client that has sent a complete request: set then, not at
+ * accept, so a connection storm costs the server as little as possible. */
+static void tune_socket(int fd)
 {
-    const rt_options_t *opt = &srv->rt->opt;
     int one = 1, idle = 60, intvl = 10, cnt = 6, sndbuf = CLIENT_SNDBUF;
 
     setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
@@ -309,6 +316,11 @@ static void admit(modbus_server_t *srv, int fd, const char *peer)
     setsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &idle, sizeof idle);
     setsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &intvl, sizeof intvl);
     setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &cnt, sizeof cnt);
+}
+
+static void admit(modbus_server_t *srv, int fd, const char *peer)
+{
+    const rt_options_t *opt = &srv->rt->opt;
 
     for (int i = 0; i < opt->max_clients; i++) {
         client_t *c = &srv->clients[i];
@@ -513,6 +525,8 @@ static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, u
     publish_counters(srv);
     pthread_mutex_unlock(&srv->rt->lock);
 
+    if (c->served == 0)
+        tune_socket(c->fd);
     modbus_set_socket(srv->ctx, c->fd);
     if (exc)
         rc = modbus_reply_exception(srv->ctx, req, (unsigned)exc);
@@ -598,13 +612,13 @@ static uint64_t enforce_timeouts(modbus_server_t *srv, uint64_t t)
         if (c->unsent_since_ns) {
             int unsent = unsent_bytes(c->fd);
             if (unsent == 0) {
-                c->unsent_since_ns = 0;
+                c->unsent_since_ns = 0;                   /* reading again: its requests are read again */
             } else if (t - c->unsent_since_ns >= limit) {
                 close_client(srv, c, EV_SLOW_READER, "%d response bytes unsent for %llu ms", unsent,
                              (unsigned long long)(limit / 1000000u));
                 continue;
-            } else if (c->unsent_since_ns + limit < next) {
-                next = c->unsent_since_ns + limit;
+            } else if (t + UNSENT_POLL_NS < next) {
+                next = t + UNSENT_POLL_NS;
             }
         }
     }
@@ -613,10 +627,31 @@ static uint64_t enforce_timeouts(modbus_server_t *srv, uint64_t t)
 
 /* --------------------------------------------------------------- thread */
 
+/* With real-time scheduling on, the server thread runs SCHED_FIFO below the scan
+ * thread: the CNC's requests are answered in time however busy the machine is,
+ * and the scan still preempts the network. */
+static void setup_priority(modbus_server_t *srv)
+{
+    const rt_options_t *opt = &srv->rt->opt;
+    struct sched_param sp = { .sched_priority = opt->rt_priority - PRIORITY_BELOW_SCAN };
+
+    if (!opt->realtime)
+        return;
+    if (sp.sched_priority < 1)
+        sp.sched_priority = 1;
+    int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    if (rc != 0)
+        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread at normal priority (SCHED_FIFO: %s)", strerror(rc));
+    else
+        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread is SCHED_FIFO priority %d", sp.sched_priority);
+}
+
 static void *server_thread(void *arg)
 {
     modbus_server_t *srv = arg;
     const int max = srv->rt->opt.max_clients;
+
+    setup_priority(srv);
 
     for (;; srv->round++) {
         fd_set rfds;
@@ -639,7 +674,9 @@ static void *server_thread(void *arg)
         FD_SET(srv->listen_fd, &rfds);
         FD_SET(srv->wake[0], &rfds);
         for (int i = 0; i < max; i++) {
-            if (srv->clients[i].fd >= 0) {
+            /* A client that leaves its responses unread gets no more answers to build:
+             * its requests wait in its own socket until it reads or the timeout drops it. */
+            if (srv->clients[i].fd >= 0 && srv->clients[i].unsent_since_ns == 0) {
                 FD_SET(srv->clients[i].fd, &rfds);
                 if (srv->clients[i].fd > top)
                     top = srv->clients[i].fd;
@@ -657,9 +694,15 @@ static void *server_thread(void *arg)
             continue;                                     /* a timeout is due */
         if (FD_ISSET(srv->wake[0], &rfds))
             break;
-        for (int i = 0; i < max; i++)
-            if (srv->clients[i].fd >= 0 && FD_ISSET(srv->clients[i].fd, &rfds))
-                read_client(srv, &srv->clients[i]);
+        /* Clients already served first (the CNC), then the newcomers and the suspects. */
+        for (int pass = 0; pass < 2; pass++)
+            for (int i = 0; i < max; i++) {
+                client_t *c = &srv->clients[i];
+                if (c->fd >= 0 && (c->served > 0) == (pass == 0) && FD_ISSET(c->fd, &rfds)) {
+                    FD_CLR(c->fd, &rfds);
+                    read_client(srv, c);
+                }
+            }
         if (FD_ISSET(srv->listen_fd, &rfds))
             accept_clients(srv);
     }

@@ -73,7 +73,7 @@ def test_a_half_received_request_is_dropped_after_the_frame_timeout(binary):
             assert closed_by_server(s)
         assert time.monotonic() - started >= 0.2                # never before the timeout
         rt.wait_for(r"client 127\.0\.0\.1:\d+ dropped: request incomplete after the frame timeout "
-                    r"\(4 bytes of a request after 200 ms\)")
+                    r"\[4 bytes of a request after 200 ms\]")
         with h.Client(rt.port) as c:
             assert served(c)
             assert h.read_diag(c)["dropped"] == 1
@@ -135,7 +135,7 @@ def test_full_slots_are_reclaimed_from_suspect_clients_never_from_served_ones(bi
         with silent(rt.port, src) as late:                      # all four slots hold served clients now
             assert closed_by_server(late)
         rt.wait_for(r"dropped to make room: no complete request yet, or one half-received")
-        rt.wait_for(r"refused: every slot holds a served client \(limit of 4 clients")
+        rt.wait_for(r"refused: every slot holds a served client \[limit of 4 clients")
         d = h.read_diag(a)
         assert d["clients"] == 4 and d["dropped"] == 2
         for c in (a, b, *newcomers):

@@ -309,7 +309,7 @@ def test_connection_limit_refuses_with_a_log_line_and_keeps_existing_clients(bin
         b.read_holding(0)
         with socket.create_connection(("127.0.0.1", rt.port), timeout=2 * h.SLOW) as third:
             assert third.recv(16) == b""                         # closed by the server
-        rt.wait_for(r"refused: every slot holds a served client \(limit of 2 clients")
+        rt.wait_for(r"refused: every slot holds a served client \[limit of 2 clients")
         assert a.read_holding(1024 + 30) == [4242] and b.read_holding(1024 + 30) == [4242]
         b.close()
         h.wait_until(lambda: h.read_diag(a)["clients"] == 1, 2, "the slot to be freed")
