@@ -26,14 +26,17 @@
  *   - a request begun but not complete after --frame-timeout ms is dropped
  *     with its connection; a connection with nothing pending is kept forever
  *     (mb2hal never reconnects);
- *   - a client whose responses stay unsent (it stopped reading) for
- *     --frame-timeout ms, or whose next response does not fit in its socket
- *     buffer, is dropped;
+ *   - a client whose responses stay unsent (it stopped reading) gets no more
+ *     answers, and is dropped after --frame-timeout ms, or at once when a
+ *     response does not fit in its socket buffer;
  *   - when every slot is taken, a new connection takes the slot of the
- *     longest-suspect client: one that has not completed a request yet, or
- *     has a request half-received.  Clients that have been served and have
- *     nothing pending are never reclaimed; if all slots hold such clients,
- *     the new connection is refused.
+ *     longest-suspect client: one that has not completed a request yet, has
+ *     one half-received, or leaves its responses unread.  Clients that have
+ *     been served and have nothing pending are never reclaimed; if all slots
+ *     hold such clients, the new connection is refused;
+ *   - each round reads the clients already served first, and accepts at most
+ *     ACCEPTS_PER_ROUND newcomers; dropped connections are reset, not closed;
+ *   - with real-time scheduling on, this thread runs SCHED_FIFO below the scan.
  * Every decision is logged, at most one line per kind per second: the first
  * event at once, the others counted and summed up in one line a second later.
  */
@@ -600,6 +603,22 @@ static uint64_t enforce_timeouts(modbus_server_t *srv, uint64_t t)
         client_t *c = &srv->clients[i];
         if (c->fd < 0)
             continue;
+        if (c->unsent_since_ns) {
+            int unsent = unsent_bytes(c->fd);
+            if (unsent == 0) {
+                c->unsent_since_ns = 0;                   /* reading again: its requests are read again */
+                if (c->len > 0)
+                    c->partial_since_ns = t;              /* the rest was held back by us, not by it */
+            } else if (t - c->unsent_since_ns >= limit) {
+                close_client(srv, c, EV_SLOW_READER, "%d response bytes unsent for %llu ms", unsent,
+                             (unsigned long long)(limit / 1000000u));
+                continue;
+            } else {
+                if (t + UNSENT_POLL_NS < next)
+                    next = t + UNSENT_POLL_NS;
+                continue;                                 /* not read meanwhile: no frame timeout */
+            }
+        }
         if (c->partial_since_ns) {
             if (t - c->partial_since_ns >= limit) {
                 close_client(srv, c, EV_FRAME_TIMEOUT, "%zu bytes of a request after %llu ms", c->len,
@@ -608,18 +627,6 @@ static uint64_t enforce_timeouts(modbus_server_t *srv, uint64_t t)
             }
             if (c->partial_since_ns + limit < next)
                 next = c->partial_since_ns + limit;
-        }
-        if (c->unsent_since_ns) {
-            int unsent = unsent_bytes(c->fd);
-            if (unsent == 0) {
-                c->unsent_since_ns = 0;                   /* reading again: its requests are read again */
-            } else if (t - c->unsent_since_ns >= limit) {
-                close_client(srv, c, EV_SLOW_READER, "%d response bytes unsent for %llu ms", unsent,
-                             (unsigned long long)(limit / 1000000u));
-                continue;
-            } else if (t + UNSENT_POLL_NS < next) {
-                next = t + UNSENT_POLL_NS;
-            }
         }
     }
     return next;

@@ -49,6 +49,18 @@
 #include <time.h>
 #include <unistd.h>
 
+/* libmodbus's names (modbus.h), without linking libmodbus into the fuzzer */
+#define MODBUS_FC_READ_COILS 0x01
+#define MODBUS_FC_READ_DISCRETE_INPUTS 0x02
+#define MODBUS_FC_READ_HOLDING_REGISTERS 0x03
+#define MODBUS_FC_READ_INPUT_REGISTERS 0x04
+#define MODBUS_FC_WRITE_SINGLE_COIL 0x05
+#define MODBUS_FC_WRITE_SINGLE_REGISTER 0x06
+#define MODBUS_FC_WRITE_MULTIPLE_COILS 0x0F
+#define MODBUS_FC_WRITE_MULTIPLE_REGISTERS 0x10
+#define MODBUS_MAX_WRITE_BITS 1968
+#define MODBUS_MAX_WRITE_REGISTERS 123
+
 #define MAX_FRAME 300
 #define MAX_BATCH 8
 
@@ -95,7 +107,11 @@ static void put16(uint8_t *p, unsigned v)
 /* A served request (function code, fields) into pdu; returns its length. */
 static unsigned valid_pdu(fuzzer_t *f, uint8_t *pdu, bool boundary)
 {
-    static const uint8_t fcs[] = { 1, 2, 3, 4, 5, 6, 15, 16 };
+    static const uint8_t fcs[] = {
+        MODBUS_FC_READ_COILS, MODBUS_FC_READ_DISCRETE_INPUTS, MODBUS_FC_READ_HOLDING_REGISTERS,
+        MODBUS_FC_READ_INPUT_REGISTERS, MODBUS_FC_WRITE_SINGLE_COIL, MODBUS_FC_WRITE_SINGLE_REGISTER,
+        MODBUS_FC_WRITE_MULTIPLE_COILS, MODBUS_FC_WRITE_MULTIPLE_REGISTERS,
+    };
     static const unsigned edges[] = { 0, 1, 123, 124, 125, 126, 799, 800, 1968, 1969, 2000, 2001, 8191, 8192,
                                       0x7FFF, 0xFFFF };
     const unsigned fc = fcs[below(f, 8)];
@@ -111,17 +127,19 @@ static unsigned valid_pdu(fuzzer_t *f, uint8_t *pdu, bool boundary)
     pdu[0] = (uint8_t)fc;
     put16(pdu + 1, addr);
     switch (fc) {
-    case 5:
+    case MODBUS_FC_WRITE_SINGLE_COIL:
         put16(pdu + 3, below(f, 3) == 0 ? next(f) & 0xFFFF : below(f, 2) ? 0xFF00 : 0);
         return 5;
-    case 6:
+    case MODBUS_FC_WRITE_SINGLE_REGISTER:
         put16(pdu + 3, next(f) & 0xFFFF);
         return 5;
-    case 15:
-    case 16: {
-        if (qty > (fc == 15 ? 1968u : 123u) && !boundary)
-            qty = 1 + below(f, fc == 15 ? 1968 : 123);
-        unsigned bytes = fc == 15 ? (qty + 7) / 8 : 2 * qty;
+    case MODBUS_FC_WRITE_MULTIPLE_COILS:
+    case MODBUS_FC_WRITE_MULTIPLE_REGISTERS: {
+        const bool coils = fc == MODBUS_FC_WRITE_MULTIPLE_COILS;
+        const unsigned max = coils ? MODBUS_MAX_WRITE_BITS : MODBUS_MAX_WRITE_REGISTERS;
+        if (qty > max && !boundary)
+            qty = 1 + below(f, max);
+        unsigned bytes = coils ? (qty + 7) / 8 : 2 * qty;
         if (bytes > 246)
             bytes = 246;
         put16(pdu + 3, qty);
@@ -178,7 +196,7 @@ static unsigned build_frame(fuzzer_t *f, enum shape s, uint8_t *out)
         break;
     case BYTE_COUNT:
         pdu_len = valid_pdu(f, pdu, false);
-        pdu[0] = below(f, 2) ? 15 : 16;
+        pdu[0] = below(f, 2) ? MODBUS_FC_WRITE_MULTIPLE_COILS : MODBUS_FC_WRITE_MULTIPLE_REGISTERS;
         if (pdu_len < 6)
             pdu_len = 6;
         pdu[5] = (uint8_t)next(f);

@@ -32,6 +32,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#define MODBUS_FC_READ_HOLDING_REGISTERS 0x03     /* libmodbus's name (modbus.h) */
+
 static int port, storm_hz = 100, reopen_ms = 100;
 static atomic_bool stopping;
 static atomic_long opened, drops, storm_cycles;
@@ -98,7 +100,7 @@ static void *slow_reader(void *arg)
     (void)arg;
 
     for (int i = 0; i < 16; i++) {                       /* read holding registers 0..124 */
-        static const uint8_t one[12] = { 0, 1, 0, 0, 0, 6, 1, 3, 0, 0, 0, 125 };
+        static const uint8_t one[12] = { 0, 1, 0, 0, 0, 6, 1, MODBUS_FC_READ_HOLDING_REGISTERS, 0, 0, 0, 125 };
         memcpy(ask + 12 * i, one, 12);
     }
     while (!atomic_load(&stopping)) {
