@@ -108,7 +108,7 @@ static const struct {
     [EV_CLOSED] = { LOG_INFO, "disconnected (closed by the client)" },
     [EV_REFUSED_ALLOWLIST] = { LOG_WARN, "refused: address not in the allowlist" },
     [EV_REFUSED_FULL] = { LOG_WARN, "refused: every slot holds a served client" },
-    [EV_RECLAIMED] = { LOG_WARN, "dropped to make room: no complete request yet, or one half-received" },
+    [EV_RECLAIMED] = { LOG_WARN, "dropped to make room: no request served, one half-received or answers unread" },
     [EV_FRAME_TIMEOUT] = { LOG_WARN, "dropped: request incomplete after the frame timeout" },
     [EV_SLOW_READER] = { LOG_WARN, "dropped: stopped reading its responses" },
     [EV_NOT_MODBUS] = { LOG_WARN, "dropped: MBAP header not Modbus/TCP" },
