@@ -14,6 +14,8 @@ Configuration file (every key optional; paths relative to the file's directory):
     bind = "127.0.0.1"              # IPv4 address to listen on
     port = 5020
     max_clients = 32
+    frame_timeout_ms = 2000         # a request begun must be complete (and responses read) within this
+    read_only = false               # true: every write function code answered with exception 01
     allow = ["127.0.0.1", "192.168.1.0/24"]   # absent or empty: any client
     writable_coils = ["400-799"]              # [] = none
     writable_registers = ["512-8191"]
@@ -169,6 +171,8 @@ class RunConfig:
     bind: str = "127.0.0.1"
     port: int = DEFAULT_PORT
     max_clients: int = 32
+    frame_timeout_ms: int = 2000
+    read_only: bool = False
     allow: list[str] = dataclasses.field(default_factory=list)
     writable_coils: list[str] | None = None          # None: the runtime's default
     writable_registers: list[str] | None = None
@@ -183,7 +187,8 @@ class RunConfig:
 
 
 _KEYS = {
-    "modbus": {"bind", "port", "max_clients", "allow", "writable_coils", "writable_registers"},
+    "modbus": {"bind", "port", "max_clients", "frame_timeout_ms", "read_only", "allow", "writable_coils",
+               "writable_registers"},
     "io": {"layer"},
     "retain": {"file", "interval_ms", "registers"},
     "scan": {"realtime", "rt_priority", "status_interval_s", "watchdog_ms"},
@@ -214,6 +219,12 @@ def _check_ranges(where: str, value: Any, limit: int) -> list[str]:
 def _check_int(where: str, value: Any, lo: int, hi: int) -> int:
     if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
         raise ConfigError(f"{where}: expected an integer {lo}..{hi}, got {value!r}")
+    return value
+
+
+def _check_bool(where: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}: expected true or false, got {value!r}")
     return value
 
 
@@ -265,6 +276,11 @@ def load_config(path: Path) -> RunConfig:
         cfg.port = _check_int(where("modbus", "port"), modbus["port"], 0, 65535)
     if "max_clients" in modbus:
         cfg.max_clients = _check_int(where("modbus", "max_clients"), modbus["max_clients"], 1, 256)
+    if "frame_timeout_ms" in modbus:
+        cfg.frame_timeout_ms = _check_int(where("modbus", "frame_timeout_ms"), modbus["frame_timeout_ms"], 1,
+                                          3600000)
+    if "read_only" in modbus:
+        cfg.read_only = _check_bool(where("modbus", "read_only"), modbus["read_only"])
     if "allow" in modbus:
         allow = modbus["allow"]
         if isinstance(allow, str):
@@ -300,9 +316,7 @@ def load_config(path: Path) -> RunConfig:
 
     scan = data.get("scan", {})
     if "realtime" in scan:
-        if not isinstance(scan["realtime"], bool):
-            raise ConfigError(f"{where('scan', 'realtime')}: expected true or false")
-        cfg.realtime = scan["realtime"]
+        cfg.realtime = _check_bool(where("scan", "realtime"), scan["realtime"])
     if "rt_priority" in scan:
         cfg.rt_priority = _check_int(where("scan", "rt_priority"), scan["rt_priority"], 1, 99)
     if "status_interval_s" in scan:
@@ -319,7 +333,8 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
     """The command line of the C runtime for a configuration."""
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
     argv = [str(binary), "--bind", cfg.bind, "--port", str(cfg.port), "--io", cfg.io,
-            "--max-clients", str(cfg.max_clients), "--retain", str(retain),
+            "--max-clients", str(cfg.max_clients), "--frame-timeout", str(cfg.frame_timeout_ms),
+            "--retain", str(retain),
             "--retain-interval", str(cfg.retain_interval_ms),
             "--status-interval", str(cfg.status_interval_s), "--watchdog", str(cfg.watchdog_ms)]
     if cfg.allow:
@@ -334,6 +349,8 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
         argv += ["--rt-priority", str(cfg.rt_priority)]
     else:
         argv.append("--no-rt")
+    if cfg.read_only:
+        argv.append("--read-only")
     return argv
 
 
@@ -345,6 +362,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bind", metavar="ADDR", help="IPv4 address to serve Modbus on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, metavar="N", help=f"Modbus/TCP port (default {DEFAULT_PORT})")
     parser.add_argument("--io", choices=("sim", "none"), help="I/O layer (default sim)")
+    parser.add_argument("--read-only", action="store_true", default=None,
+                        help="serve reads only: every Modbus write is answered with exception 01")
     parser.add_argument("--retain", type=Path, metavar="FILE",
                         help=f"file keeping RETAIN data (default {DEFAULT_RETAIN_FILE})")
     parser.add_argument("--sanitize", action="store_true",
@@ -362,6 +381,8 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
         cfg.port = _check_int("--port", args.port, 0, 65535)
     if args.io is not None:
         cfg.io = args.io
+    if args.read_only:
+        cfg.read_only = True
     if args.retain is not None:
         cfg.retain_file = args.retain
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE

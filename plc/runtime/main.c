@@ -31,6 +31,7 @@
 #define DEFAULT_RT_PRIORITY 50
 #define FALLBACK_TICK_NS 10000000u
 #define DEFAULT_WATCHDOG_MS 1000
+#define DEFAULT_FRAME_TIMEOUT_MS 2000
 
 static void usage(FILE *f)
 {
@@ -46,11 +47,15 @@ static void usage(FILE *f)
 "  --retain-registers LIST  holding registers saved with RETAIN data, e.g. 1024-1039\n"
 "  --allow ADDR[/BITS]      accept clients only from these addresses (repeatable)\n"
 "  --max-clients N          concurrent client limit (default %d)\n"
+"  --frame-timeout MS       drop a client whose request is still incomplete, or whose\n"
+"                           responses stay unread, after MS (default %d)\n"
+"  --read-only              answer every write function code with exception 01\n"
 "  --writable-coils LIST    coils the host may write (default " DEFAULT_WRITABLE_COILS ", 'none')\n"
 "  --writable-registers LIST  holding registers the host may write\n"
 "                           (default " DEFAULT_WRITABLE_REGISTERS ", 'none')\n"
 "  --no-rt                  do not ask for SCHED_FIFO\n"
-"  --rt-priority N          SCHED_FIFO priority of the scan thread (default %d)\n"
+"  --rt-priority N          SCHED_FIFO priority of the scan thread (default %d;\n"
+"                           the Modbus server thread runs 10 levels below it)\n"
 "  --status auto|tty|log|off  live status line (auto: on a terminal, else log lines)\n"
 "  --status-interval S      seconds between status log lines when not on a terminal (default 10)\n"
 "  --duration S             stop after S seconds (benchmarks; default: run until SIGINT/SIGTERM)\n"
@@ -59,7 +64,8 @@ static void usage(FILE *f)
 "\n"
 "Diagnostics are in input registers %u-%u (see runtime.h).  Exit status: 0 after\n"
 "SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error.\n",
-            DEFAULT_PORT, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_RT_PRIORITY,
+            DEFAULT_PORT, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_FRAME_TIMEOUT_MS,
+            DEFAULT_RT_PRIORITY,
             DEFAULT_WATCHDOG_MS, DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
 }
 
@@ -139,7 +145,7 @@ static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char
 }
 
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
-       OPT_MAX_CLIENTS, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
+       OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
        OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_VERSION, OPT_HELP };
 
 static int parse_options(int argc, char **argv, rt_options_t *o)
@@ -153,6 +159,8 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "retain-registers", required_argument, NULL, OPT_RETAIN_REGISTERS },
         { "allow", required_argument, NULL, OPT_ALLOW },
         { "max-clients", required_argument, NULL, OPT_MAX_CLIENTS },
+        { "frame-timeout", required_argument, NULL, OPT_FRAME_TIMEOUT },
+        { "read-only", no_argument, NULL, OPT_READ_ONLY },
         { "writable-coils", required_argument, NULL, OPT_WRITABLE_COILS },
         { "writable-registers", required_argument, NULL, OPT_WRITABLE_REGISTERS },
         { "no-rt", no_argument, NULL, OPT_NO_RT },
@@ -175,6 +183,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     o->io = &io_sim_layer;
     o->retain_interval_ms = DEFAULT_RETAIN_INTERVAL_MS;
     o->max_clients = DEFAULT_MAX_CLIENTS;
+    o->frame_timeout_ms = DEFAULT_FRAME_TIMEOUT_MS;
     o->realtime = true;
     o->rt_priority = DEFAULT_RT_PRIORITY;
     o->status = STATUS_AUTO;
@@ -228,6 +237,14 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             if (!parse_long(optarg, 1, 256, &v))
                 return usage_error("--max-clients: '%s' is not a number 1..256", optarg);
             o->max_clients = (int)v;
+            break;
+        case OPT_FRAME_TIMEOUT:
+            if (!parse_long(optarg, 1, 3600000, &v))
+                return usage_error("--frame-timeout: '%s' is not a number of milliseconds 1..3600000", optarg);
+            o->frame_timeout_ms = (int)v;
+            break;
+        case OPT_READ_ONLY:
+            o->read_only = true;
             break;
         case OPT_WRITABLE_COILS:
             if ((rc = parse_set(&o->writable_coils, optarg, MAP_BITS, "--writable-coils")) != 0)

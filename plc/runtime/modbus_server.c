@@ -13,29 +13,48 @@
  *
  * Every request is checked completely before libmodbus sees it (function
  * code, PDU length against the MBAP length, quantity, byte count, address
- * range, host-writable range), so modbus_reply() only ever answers valid
- * requests.  That matters: on a bad quantity modbus_reply() would sleep for
- * the response timeout and flush the socket, and for function codes 0x11,
- * 0x16 and 0x17 it would answer by itself.
+ * range, host-writable range, read-only mode), so modbus_reply() only ever
+ * answers valid requests.  That matters: on a bad quantity modbus_reply()
+ * would sleep for the response timeout and flush the socket, and for function
+ * codes 0x11, 0x16 and 0x17 it would answer by itself.
  *
  * Locking: the image lock is held only to copy the registers a request reads
  * into a scratch mapping, or to queue the values it writes; never during a
- * socket call.  Client sockets are non-blocking; a client that stops reading
- * its responses until its socket buffer is full is disconnected.  Allowed
- * clients are never disconnected for being idle (mb2hal never reconnects);
- * TCP keepalive only frees the slots of peers that have vanished.
+ * socket call.
+ *
+ * Hostile clients (the CNC must stay served):
+ *   - a request begun but not complete after --frame-timeout ms is dropped
+ *     with its connection; a connection with nothing pending is kept forever
+ *     (mb2hal never reconnects);
+ *   - a client whose responses stay unsent (it stopped reading) gets no more
+ *     answers, and is dropped after --frame-timeout ms, or at once when a
+ *     response does not fit in its socket buffer;
+ *   - when every slot is taken, a new connection takes the slot of the
+ *     longest-suspect client: one that has not completed a request yet, has
+ *     one half-received, or leaves its responses unread.  Clients that have
+ *     been served and have nothing pending are never reclaimed; if all slots
+ *     hold such clients, the new connection is refused;
+ *   - each round reads the clients already served first, and accepts at most
+ *     ACCEPTS_PER_ROUND newcomers; dropped connections are reset, not closed;
+ *   - with real-time scheduling on, this thread runs SCHED_FIFO below the scan.
+ * Every decision is logged, at most one line per kind per second: the first
+ * event at once, the others counted and summed up in one line a second later.
  */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <linux/sockios.h>
 #include <modbus.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <pthread.h>
+#include <sched.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <sys/select.h>
 #include <sys/socket.h>
 #include <unistd.h>
@@ -45,18 +64,64 @@
 #define MBAP_HEADER 7u                /* transaction id, protocol id, length, unit id */
 #define MBAP_MAX_LENGTH 254u          /* unit id + the largest PDU (253 bytes) */
 #define CLIENT_BUFFER (2u * (6u + MBAP_MAX_LENGTH))
-
-/* Modbus exception codes */
-#define EXC_ILLEGAL_FUNCTION 1
-#define EXC_ILLEGAL_ADDRESS 2
-#define EXC_ILLEGAL_VALUE 3
+#define CLIENT_SNDBUF 16384           /* per-client send buffer: ~60 of the largest responses */
+#define LISTEN_BACKLOG 512           /* a connection storm overflows it later (SYN drops stall connect) */
+#define ACCEPTS_PER_ROUND 2           /* a connection storm cannot starve the served clients */
+#define EVENT_WINDOW_NS 1000000000u   /* one log line per kind per second */
+#define PRIORITY_BELOW_SCAN 10       /* SCHED_FIFO priority of this thread: the scan's minus this */
+#define UNSENT_POLL_NS 10000000u      /* how often a client that stopped reading is looked at */
+#define PEER_TEXT (INET_ADDRSTRLEN + 8)
 
 typedef struct client {
     int fd;                           /* -1: free slot */
-    size_t len;
+    size_t len;                       /* bytes in buf */
+    uint64_t connected_ns;
+    uint64_t partial_since_ns;        /* when the incomplete request in buf began; 0: none */
+    uint64_t unsent_since_ns;         /* when responses were first seen unsent; 0: flowing */
+    uint64_t admitted_round;          /* server loop round it was accepted in */
+    uint32_t served;                  /* requests answered */
     uint8_t buf[CLIENT_BUFFER];
-    char peer[INET_ADDRSTRLEN + 8];
+    char peer[PEER_TEXT];
 } client_t;
+
+/* ------------------------------------------------- rate-limited decisions */
+
+typedef enum event_kind {
+    EV_CONNECTED,
+    EV_CLOSED,
+    EV_REFUSED_ALLOWLIST,
+    EV_REFUSED_FULL,
+    EV_RECLAIMED,
+    EV_FRAME_TIMEOUT,
+    EV_SLOW_READER,
+    EV_NOT_MODBUS,
+    EV_SOCKET_ERROR,
+    EV_STOPPING,
+    EV_COUNT
+} event_kind_t;
+
+static const struct {
+    log_level_t level;
+    const char *what;                 /* follows "client PEER " */
+} EVENTS[EV_COUNT] = {
+    [EV_CONNECTED] = { LOG_INFO, "connected" },
+    [EV_CLOSED] = { LOG_INFO, "disconnected (closed by the client)" },
+    [EV_REFUSED_ALLOWLIST] = { LOG_WARN, "refused: address not in the allowlist" },
+    [EV_REFUSED_FULL] = { LOG_WARN, "refused: every slot holds a served client" },
+    [EV_RECLAIMED] = { LOG_WARN, "dropped to make room: no request served, one half-received or answers unread" },
+    [EV_FRAME_TIMEOUT] = { LOG_WARN, "dropped: request incomplete after the frame timeout" },
+    [EV_SLOW_READER] = { LOG_WARN, "dropped: stopped reading its responses" },
+    [EV_NOT_MODBUS] = { LOG_WARN, "dropped: MBAP header not Modbus/TCP" },
+    [EV_SOCKET_ERROR] = { LOG_WARN, "dropped: socket error" },
+    [EV_STOPPING] = { LOG_INFO, "disconnected (runtime stopping)" },
+};
+
+typedef struct event_gate {
+    uint64_t last_line_ns;            /* 0: no line yet */
+    unsigned held;                    /* events since that line, not logged yet */
+    char last_peer[PEER_TEXT];
+    char last_detail[112];
+} event_gate_t;
 
 struct modbus_server {
     runtime_t *rt;
@@ -68,9 +133,10 @@ struct modbus_server {
     bool thread_started;
     client_t *clients;
     int n_clients;
-    uint32_t requests, exceptions, refused;
-    uint64_t last_refusal_log_ns;
-    unsigned refusals_not_logged;
+    uint64_t frame_timeout_ns;
+    uint64_t round;                   /* select() rounds so far */
+    uint32_t requests, exceptions, refused, dropped;
+    event_gate_t gates[EV_COUNT];
 };
 
 /* --------------------------------------------------------------- helpers */
@@ -88,6 +154,7 @@ static void publish_counters(modbus_server_t *srv)   /* caller holds the lock */
     diag_put32(b, DIAG_REQUESTS, srv->requests);
     diag_put32(b, DIAG_EXCEPTIONS, srv->exceptions);
     diag_put32(b, DIAG_REFUSED, srv->refused);
+    diag_put32(b, DIAG_DROPPED, srv->dropped);
 }
 
 static void update_counters(modbus_server_t *srv)
@@ -107,47 +174,187 @@ static bool allowed(const rt_options_t *opt, uint32_t addr)
     return false;
 }
 
-static void close_client(modbus_server_t *srv, client_t *c, const char *why)
+static void detail_text(const char *detail, char *out, size_t n)
 {
-    log_msg(srv->rt->log, LOG_INFO, "modbus: client %s disconnected (%s)", c->peer, why);
+    if (detail[0])
+        snprintf(out, n, " [%s]", detail);
+    else
+        out[0] = 0;
+}
+
+/* Log one decision: at once when the kind had no line in the last second,
+ * else counted for the summary line flush_events() writes. */
+static void note_event(modbus_server_t *srv, event_kind_t kind, const char *peer, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+static void note_event(modbus_server_t *srv, event_kind_t kind, const char *peer, const char *fmt, ...)
+{
+    event_gate_t *g = &srv->gates[kind];
+    uint64_t t = now_ns();
+    va_list ap;
+
+    va_start(ap, fmt);
+    vsnprintf(g->last_detail, sizeof g->last_detail, fmt, ap);
+    va_end(ap);
+    snprintf(g->last_peer, sizeof g->last_peer, "%s", peer);
+    if (g->last_line_ns != 0 && t - g->last_line_ns < EVENT_WINDOW_NS) {
+        g->held++;
+        return;
+    }
+    char detail[sizeof g->last_detail + 4];
+    detail_text(g->last_detail, detail, sizeof detail);
+    log_msg(srv->rt->log, EVENTS[kind].level, "modbus: client %s %s%s", peer, EVENTS[kind].what, detail);
+    g->last_line_ns = t;
+    g->held = 0;
+}
+
+/* Write the summary lines that are due; return the next time one will be. */
+static uint64_t flush_events(modbus_server_t *srv, uint64_t t, bool all)
+{
+    uint64_t next = UINT64_MAX;
+
+    for (int k = 0; k < EV_COUNT; k++) {
+        event_gate_t *g = &srv->gates[k];
+        if (g->held == 0)
+            continue;
+        if (!all && t - g->last_line_ns < EVENT_WINDOW_NS) {
+            if (g->last_line_ns + EVENT_WINDOW_NS < next)
+                next = g->last_line_ns + EVENT_WINDOW_NS;
+            continue;
+        }
+        log_msg(srv->rt->log, EVENTS[k].level, "modbus: %u more clients %s in the last %.1f s [the last: %s%s%s]",
+                g->held, EVENTS[k].what, (double)(t - g->last_line_ns) / 1e9, g->last_peer,
+                g->last_detail[0] ? ", " : "", g->last_detail);
+        g->last_line_ns = t;
+        g->held = 0;
+    }
+    return next;
+}
+
+static void close_client(modbus_server_t *srv, client_t *c, event_kind_t why, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+static void close_client(modbus_server_t *srv, client_t *c, event_kind_t why, const char *fmt, ...)
+{
+    char detail[112];
+    va_list ap;
+
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    note_event(srv, why, c->peer, "%s", detail);
+    if (why != EV_CLOSED && why != EV_STOPPING) {
+        /* Reset, not FIN: a hostile storm leaves no TIME_WAIT sockets behind here. */
+        struct linger abort_close = { .l_onoff = 1, .l_linger = 0 };
+        setsockopt(c->fd, SOL_SOCKET, SO_LINGER, &abort_close, sizeof abort_close);
+    }
     close(c->fd);
     c->fd = -1;
     c->len = 0;
     srv->n_clients--;
+    if (why != EV_CLOSED && why != EV_STOPPING)
+        srv->dropped++;
     update_counters(srv);
+}
+
+/* Bytes queued on the socket that the peer's window does not let out yet. */
+static int unsent_bytes(int fd)
+{
+    int n = 0;
+
+    if (ioctl(fd, SIOCOUTQNSD, &n) != 0)
+        return 0;
+    return n;
 }
 
 /* --------------------------------------------------------------- accept */
 
-static void refuse(modbus_server_t *srv, int fd, const char *peer, const char *why)
+static void refuse(modbus_server_t *srv, int fd, const char *peer, event_kind_t why, const char *detail)
 {
-    uint64_t t = now_ns();
-
     close(fd);
     srv->refused++;
     update_counters(srv);
-    /* One line per second at most, so a connection flood cannot flood the log. */
-    if (t - srv->last_refusal_log_ns >= 1000000000u || srv->last_refusal_log_ns == 0) {
-        if (srv->refusals_not_logged)
-            log_msg(srv->rt->log, LOG_WARN, "modbus: connection from %s refused: %s (and %u more refusals not logged)",
-                    peer, why, srv->refusals_not_logged);
-        else
-            log_msg(srv->rt->log, LOG_WARN, "modbus: connection from %s refused: %s", peer, why);
-        srv->last_refusal_log_ns = t;
-        srv->refusals_not_logged = 0;
-    } else {
-        srv->refusals_not_logged++;
+    note_event(srv, why, peer, "%s", detail);
+}
+
+/* The slot a new connection may take from a suspect client, or NULL.  Suspect:
+ * no request completed yet, a request half-received, or responses left unread;
+ * the longest-suspect goes.
+ * A client accepted in this round has not been read yet: it is not a candidate,
+ * but *fresh says one exists (the caller then leaves the newcomer queued). */
+static client_t *reclaimable(modbus_server_t *srv, bool *fresh)
+{
+    client_t *victim = NULL;
+    uint64_t oldest = UINT64_MAX;
+
+    *fresh = false;
+    for (int i = 0; i < srv->rt->opt.max_clients; i++) {
+        client_t *c = &srv->clients[i];
+        if (c->fd < 0)
+            continue;
+        if (c->admitted_round == srv->round) {
+            *fresh = true;
+            continue;
+        }
+        uint64_t since = c->partial_since_ns ? c->partial_since_ns
+                         : c->served == 0 ? c->connected_ns
+                         : c->unsent_since_ns;
+        if (since != 0 && since < oldest) {
+            oldest = since;
+            victim = c;
+        }
     }
+    return victim;
+}
+
+/* Socket options of a client that has sent a complete request: set then, not at
+ * accept, so a connection storm costs the server as little as possible. */
+static void tune_socket(int fd)
+{
+    int one = 1, idle = 60, intvl = 10, cnt = 6, sndbuf = CLIENT_SNDBUF;
+
+    setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &sndbuf, sizeof sndbuf);
+    setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);
+    setsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &idle, sizeof idle);
+    setsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &intvl, sizeof intvl);
+    setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &cnt, sizeof cnt);
+}
+
+static void admit(modbus_server_t *srv, int fd, const char *peer)
+{
+    const rt_options_t *opt = &srv->rt->opt;
+
+    for (int i = 0; i < opt->max_clients; i++) {
+        client_t *c = &srv->clients[i];
+        if (c->fd >= 0)
+            continue;
+        c->fd = fd;
+        c->len = 0;
+        c->connected_ns = now_ns();
+        c->partial_since_ns = c->unsent_since_ns = 0;
+        c->served = 0;
+        c->admitted_round = srv->round;
+        snprintf(c->peer, sizeof c->peer, "%s", peer);
+        srv->n_clients++;
+        break;
+    }
+    update_counters(srv);
+    note_event(srv, EV_CONNECTED, peer, "%d of %d", srv->n_clients, opt->max_clients);
 }
 
 static void accept_clients(modbus_server_t *srv)
 {
     const rt_options_t *opt = &srv->rt->opt;
 
-    for (;;) {
+    for (int n = 0; n < ACCEPTS_PER_ROUND; n++) {
+        bool fresh = false;
+        if (srv->n_clients >= opt->max_clients && !reclaimable(srv, &fresh) && fresh)
+            return;                         /* read the newest first; the rest wait in the backlog */
+
         struct sockaddr_in sa;
         socklen_t salen = sizeof sa;
-        char peer[INET_ADDRSTRLEN + 8], ip[INET_ADDRSTRLEN];
+        char peer[PEER_TEXT], ip[INET_ADDRSTRLEN];
         int fd = accept4(srv->listen_fd, (struct sockaddr *)&sa, &salen, SOCK_NONBLOCK | SOCK_CLOEXEC);
 
         if (fd < 0) {
@@ -160,43 +367,94 @@ static void accept_clients(modbus_server_t *srv)
         snprintf(peer, sizeof peer, "%s:%u", ip, ntohs(sa.sin_port));
 
         if (!allowed(opt, ntohl(sa.sin_addr.s_addr))) {
-            refuse(srv, fd, peer, "address not in the allowlist");
-            continue;
-        }
-        if (srv->n_clients >= opt->max_clients) {
-            char why[96];
-            snprintf(why, sizeof why, "limit of %d clients reached (max_clients)", opt->max_clients);
-            refuse(srv, fd, peer, why);
+            refuse(srv, fd, peer, EV_REFUSED_ALLOWLIST, "");
             continue;
         }
         if (fd >= FD_SETSIZE) {
-            refuse(srv, fd, peer, "descriptor number too high for select()");
+            refuse(srv, fd, peer, EV_REFUSED_FULL, "descriptor number too high for select()");
             continue;
         }
-        int one = 1, idle = 60, intvl = 10, cnt = 6;
-        setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
-        setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);
-        setsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &idle, sizeof idle);
-        setsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &intvl, sizeof intvl);
-        setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &cnt, sizeof cnt);
-
-        for (int i = 0; i < opt->max_clients; i++) {
-            client_t *c = &srv->clients[i];
-            if (c->fd >= 0)
+        if (srv->n_clients >= opt->max_clients) {
+            bool fresh;
+            client_t *victim = reclaimable(srv, &fresh);
+            if (!victim) {
+                char why[64];
+                snprintf(why, sizeof why, "limit of %d clients, --max-clients", opt->max_clients);
+                refuse(srv, fd, peer, EV_REFUSED_FULL, why);
                 continue;
-            c->fd = fd;
-            c->len = 0;
-            snprintf(c->peer, sizeof c->peer, "%s", peer);
-            srv->n_clients++;
-            break;
+            }
+            close_client(srv, victim, EV_RECLAIMED, "for %s; connected %llu ms ago, %u requests served, %zu bytes "
+                         "pending", peer, (unsigned long long)((now_ns() - victim->connected_ns) / 1000000u),
+                         victim->served, victim->len);
         }
-        update_counters(srv);
-        log_msg(srv->rt->log, LOG_INFO, "modbus: client %s connected (%d of %d)", peer, srv->n_clients,
-                opt->max_clients);
+        admit(srv, fd, peer);
     }
 }
 
 /* ------------------------------------------------------------- requests */
+
+static bool is_write(unsigned fc)
+{
+    return fc == MODBUS_FC_WRITE_SINGLE_COIL || fc == MODBUS_FC_WRITE_SINGLE_REGISTER
+           || fc == MODBUS_FC_WRITE_MULTIPLE_COILS || fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS;
+}
+
+static bool is_read(unsigned fc)
+{
+    return fc == MODBUS_FC_READ_COILS || fc == MODBUS_FC_READ_DISCRETE_INPUTS
+           || fc == MODBUS_FC_READ_HOLDING_REGISTERS || fc == MODBUS_FC_READ_INPUT_REGISTERS;
+}
+
+static int check_read(const uint8_t *pdu, unsigned pdu_len)
+{
+    const unsigned fc = pdu[0], addr = be16(pdu + 1), qty = be16(pdu + 3);
+    const bool bits = fc == MODBUS_FC_READ_COILS || fc == MODBUS_FC_READ_DISCRETE_INPUTS;
+    const unsigned max = bits ? MODBUS_MAX_READ_BITS : MODBUS_MAX_READ_REGISTERS;
+    const unsigned size = bits ? MAP_BITS : fc == MODBUS_FC_READ_HOLDING_REGISTERS ? MAP_HOLDING : MAP_INPUT_REGS;
+
+    if (pdu_len != 5 || qty < 1 || qty > max)
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+    if (addr + qty > size)
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+    return 0;
+}
+
+static int check_write(const rt_options_t *opt, const uint8_t *pdu, unsigned pdu_len)
+{
+    const unsigned fc = pdu[0], addr = be16(pdu + 1), qty = be16(pdu + 3);   /* qty: the value for 5 and 6 */
+
+    switch (fc) {
+    case MODBUS_FC_WRITE_SINGLE_COIL:
+        if (pdu_len != 5 || (qty != 0x0000 && qty != 0xFF00))
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        if (addr >= MAP_BITS || !addr_set_has(&opt->writable_coils, addr))
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return 0;
+    case MODBUS_FC_WRITE_SINGLE_REGISTER:
+        if (pdu_len != 5)
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        if (addr >= MAP_HOLDING || !addr_set_has(&opt->writable_registers, addr))
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return 0;
+    default: {                                  /* multiple coils, multiple registers */
+        const bool coils = fc == MODBUS_FC_WRITE_MULTIPLE_COILS;
+        const unsigned max = coils ? MODBUS_MAX_WRITE_BITS : MODBUS_MAX_WRITE_REGISTERS;
+        const unsigned size = coils ? MAP_BITS : MAP_HOLDING;
+        const addr_set_t *w = coils ? &opt->writable_coils : &opt->writable_registers;
+        if (pdu_len < 6 || qty < 1 || qty > max)
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        const unsigned bytes = coils ? (qty + 7) / 8 : 2 * qty;
+        if (pdu[5] != bytes || pdu_len != 6 + bytes)
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        if (addr + qty > size)
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        for (unsigned a = addr; a < addr + qty; a++)
+            if (!addr_set_has(w, a))
+                return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return 0;
+    }
+    }
+}
 
 /* Check a request.  Returns 0 when it may be served, else the exception code.
  * pdu points at the function code, pdu_len counts it. */
@@ -204,53 +462,13 @@ static int check_request(const rt_options_t *opt, const uint8_t *pdu, unsigned p
 {
     const unsigned fc = pdu[0];
 
-    if (fc != 1 && fc != 2 && fc != 3 && fc != 4 && fc != 5 && fc != 6 && fc != 15 && fc != 16)
-        return EXC_ILLEGAL_FUNCTION;
+    if (!is_read(fc) && !is_write(fc))
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    if (is_write(fc) && opt->read_only)
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;   /* the whole write function set is off */
     if (pdu_len < 5)
-        return EXC_ILLEGAL_VALUE;
-
-    const unsigned addr = be16(pdu + 1);
-    const unsigned qty = be16(pdu + 3);     /* the value for FC 5 and 6 */
-
-    switch (fc) {
-    case 1: case 2: case 3: case 4: {
-        const unsigned max = fc <= 2 ? MODBUS_MAX_READ_BITS : MODBUS_MAX_READ_REGISTERS;
-        const unsigned size = fc <= 2 ? MAP_BITS : fc == 3 ? MAP_HOLDING : MAP_INPUT_REGS;
-        if (pdu_len != 5 || qty < 1 || qty > max)
-            return EXC_ILLEGAL_VALUE;
-        if (addr + qty > size)
-            return EXC_ILLEGAL_ADDRESS;
-        return 0;
-    }
-    case 5:
-        if (pdu_len != 5 || (qty != 0x0000 && qty != 0xFF00))
-            return EXC_ILLEGAL_VALUE;
-        if (addr >= MAP_BITS || !addr_set_has(&opt->writable_coils, addr))
-            return EXC_ILLEGAL_ADDRESS;
-        return 0;
-    case 6:
-        if (pdu_len != 5)
-            return EXC_ILLEGAL_VALUE;
-        if (addr >= MAP_HOLDING || !addr_set_has(&opt->writable_registers, addr))
-            return EXC_ILLEGAL_ADDRESS;
-        return 0;
-    default: {                                  /* 15 and 16 */
-        const unsigned max = fc == 15 ? MODBUS_MAX_WRITE_BITS : MODBUS_MAX_WRITE_REGISTERS;
-        const unsigned size = fc == 15 ? MAP_BITS : MAP_HOLDING;
-        const addr_set_t *w = fc == 15 ? &opt->writable_coils : &opt->writable_registers;
-        if (pdu_len < 6 || qty < 1 || qty > max)
-            return EXC_ILLEGAL_VALUE;
-        const unsigned bytes = fc == 15 ? (qty + 7) / 8 : 2 * qty;
-        if (pdu[5] != bytes || pdu_len != 6 + bytes)
-            return EXC_ILLEGAL_VALUE;
-        if (addr + qty > size)
-            return EXC_ILLEGAL_ADDRESS;
-        for (unsigned a = addr; a < addr + qty; a++)
-            if (!addr_set_has(w, a))
-                return EXC_ILLEGAL_ADDRESS;
-        return 0;
-    }
-    }
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+    return is_read(fc) ? check_read(pdu, pdu_len) : check_write(opt, pdu, pdu_len);
 }
 
 /* Copy what a valid request reads into the scratch mapping, or queue what it
@@ -262,29 +480,29 @@ static void serve_locked(modbus_server_t *srv, const uint8_t *pdu)
     const unsigned fc = pdu[0], addr = be16(pdu + 1), qty = be16(pdu + 3);
 
     switch (fc) {
-    case 1:
+    case MODBUS_FC_READ_COILS:
         memcpy(m->tab_bits + addr, b->coils + addr, qty);
         break;
-    case 2:
+    case MODBUS_FC_READ_DISCRETE_INPUTS:
         memcpy(m->tab_input_bits + addr, b->discrete + addr, qty);
         break;
-    case 3:
+    case MODBUS_FC_READ_HOLDING_REGISTERS:
         memcpy(m->tab_registers + addr, b->holding + addr, 2u * qty);
         break;
-    case 4:
+    case MODBUS_FC_READ_INPUT_REGISTERS:
         memcpy(m->tab_input_registers + addr, b->input_regs + addr, 2u * qty);
         break;
-    case 5:
+    case MODBUS_FC_WRITE_SINGLE_COIL:
         image_host_write_coil(b, addr, qty == 0xFF00);
         break;
-    case 6:
+    case MODBUS_FC_WRITE_SINGLE_REGISTER:
         image_host_write_register(b, addr, (uint16_t)qty);
         break;
-    case 15:
+    case MODBUS_FC_WRITE_MULTIPLE_COILS:
         for (unsigned i = 0; i < qty; i++)
             image_host_write_coil(b, addr + i, (pdu[6 + i / 8] >> (i % 8)) & 1u);
         break;
-    case 16:
+    case MODBUS_FC_WRITE_MULTIPLE_REGISTERS:
         for (unsigned i = 0; i < qty; i++)
             image_host_write_register(b, addr + i, be16(pdu + 6 + 2 * i));
         break;
@@ -293,7 +511,7 @@ static void serve_locked(modbus_server_t *srv, const uint8_t *pdu)
     }
 }
 
-/* Handle one complete frame.  Returns -1 when the client must be closed. */
+/* Handle one complete frame.  Returns -1 when the client was closed. */
 static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, unsigned len)
 {
     const uint8_t *pdu = req + MBAP_HEADER;
@@ -310,6 +528,8 @@ static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, u
     publish_counters(srv);
     pthread_mutex_unlock(&srv->rt->lock);
 
+    if (c->served == 0)
+        tune_socket(c->fd);
     modbus_set_socket(srv->ctx, c->fd);
     if (exc)
         rc = modbus_reply_exception(srv->ctx, req, (unsigned)exc);
@@ -317,11 +537,16 @@ static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, u
         rc = modbus_reply(srv->ctx, req, (int)len, srv->scratch);
     modbus_set_socket(srv->ctx, -1);
     if (rc < 0) {
-        char why[128];
-        snprintf(why, sizeof why, "cannot send a response: %s", modbus_strerror(errno));
-        close_client(srv, c, why);
+        /* A non-blocking send that does not fit whole: the client stopped reading. */
+        if (errno == EAGAIN || errno == EWOULDBLOCK || errno == EMBBADDATA)
+            close_client(srv, c, EV_SLOW_READER, "its socket buffer is full; %u requests served", c->served);
+        else
+            close_client(srv, c, EV_SOCKET_ERROR, "cannot send a response: %s", modbus_strerror(errno));
         return -1;
     }
+    c->served++;
+    if (c->unsent_since_ns == 0 && unsent_bytes(c->fd) > 0)
+        c->unsent_since_ns = now_ns();
     return 0;
 }
 
@@ -330,12 +555,12 @@ static void read_client(modbus_server_t *srv, client_t *c)
     ssize_t n = recv(c->fd, c->buf + c->len, sizeof c->buf - c->len, 0);
 
     if (n == 0) {
-        close_client(srv, c, "closed by the client");
+        close_client(srv, c, EV_CLOSED, "%s", "");
         return;
     }
     if (n < 0) {
         if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
-            close_client(srv, c, strerror(errno));
+            close_client(srv, c, EV_SOCKET_ERROR, "%s", strerror(errno));
         return;
     }
     c->len += (size_t)n;
@@ -343,68 +568,156 @@ static void read_client(modbus_server_t *srv, client_t *c)
     while (c->len >= MBAP_HEADER) {
         const unsigned protocol = be16(c->buf + 2);
         const unsigned length = be16(c->buf + 4);     /* unit id + PDU */
-        char why[96];
 
         if (protocol != 0) {
-            snprintf(why, sizeof why, "protocol id %u in the MBAP header, not Modbus", protocol);
-            close_client(srv, c, why);
+            close_client(srv, c, EV_NOT_MODBUS, "protocol id %u", protocol);
             return;
         }
         if (length < 2 || length > MBAP_MAX_LENGTH) {
-            snprintf(why, sizeof why, "MBAP length %u outside 2..%u", length, MBAP_MAX_LENGTH);
-            close_client(srv, c, why);
+            close_client(srv, c, EV_NOT_MODBUS, "MBAP length %u outside 2..%u", length, MBAP_MAX_LENGTH);
             return;
         }
         const unsigned frame = 6 + length;
         if (c->len < frame)
-            return;                               /* wait for the rest */
+            break;                                /* wait for the rest */
         if (handle_frame(srv, c, c->buf, frame) < 0)
             return;
         memmove(c->buf, c->buf + frame, c->len - frame);
         c->len -= frame;
+        c->partial_since_ns = 0;
     }
+    if (c->len == 0)
+        c->partial_since_ns = 0;
+    else if (c->partial_since_ns == 0)
+        c->partial_since_ns = now_ns();
+}
+
+/* Drop half-received requests and stalled readers whose time is up; return
+ * the next instant a check is due (UINT64_MAX: none). */
+static uint64_t enforce_timeouts(modbus_server_t *srv, uint64_t t)
+{
+    const uint64_t limit = srv->frame_timeout_ns;
+    uint64_t next = UINT64_MAX;
+
+    for (int i = 0; i < srv->rt->opt.max_clients; i++) {
+        client_t *c = &srv->clients[i];
+        if (c->fd < 0)
+            continue;
+        if (c->unsent_since_ns) {
+            int unsent = unsent_bytes(c->fd);
+            if (unsent == 0) {
+                c->unsent_since_ns = 0;                   /* reading again: its requests are read again */
+                if (c->len > 0)
+                    c->partial_since_ns = t;              /* the rest was held back by us, not by it */
+            } else if (t - c->unsent_since_ns >= limit) {
+                close_client(srv, c, EV_SLOW_READER, "%d response bytes unsent for %llu ms", unsent,
+                             (unsigned long long)(limit / 1000000u));
+                continue;
+            } else {
+                if (t + UNSENT_POLL_NS < next)
+                    next = t + UNSENT_POLL_NS;
+                continue;                                 /* not read meanwhile: no frame timeout */
+            }
+        }
+        if (c->partial_since_ns) {
+            if (t - c->partial_since_ns >= limit) {
+                close_client(srv, c, EV_FRAME_TIMEOUT, "%zu bytes of a request after %llu ms", c->len,
+                             (unsigned long long)(limit / 1000000u));
+                continue;
+            }
+            if (c->partial_since_ns + limit < next)
+                next = c->partial_since_ns + limit;
+        }
+    }
+    return next;
 }
 
 /* --------------------------------------------------------------- thread */
+
+/* With real-time scheduling on, the server thread runs SCHED_FIFO below the scan
+ * thread: the CNC's requests are answered in time however busy the machine is,
+ * and the scan still preempts the network. */
+static void setup_priority(modbus_server_t *srv)
+{
+    const rt_options_t *opt = &srv->rt->opt;
+    struct sched_param sp = { .sched_priority = opt->rt_priority - PRIORITY_BELOW_SCAN };
+
+    if (!opt->realtime)
+        return;
+    if (sp.sched_priority < 1)
+        sp.sched_priority = 1;
+    int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    if (rc != 0)
+        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread at normal priority (SCHED_FIFO: %s)", strerror(rc));
+    else
+        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread is SCHED_FIFO priority %d", sp.sched_priority);
+}
 
 static void *server_thread(void *arg)
 {
     modbus_server_t *srv = arg;
     const int max = srv->rt->opt.max_clients;
 
-    for (;;) {
+    setup_priority(srv);
+
+    for (;; srv->round++) {
         fd_set rfds;
         int top = srv->listen_fd > srv->wake[0] ? srv->listen_fd : srv->wake[0];
+        uint64_t t = now_ns();
+        uint64_t due = enforce_timeouts(srv, t);
+        uint64_t flush = flush_events(srv, t, false);
+        struct timeval tv, *wait = NULL;
 
+        if (flush < due)
+            due = flush;
+        if (due != UINT64_MAX) {
+            uint64_t left = due > t ? due - t : 0;
+            left += 999;                                  /* round up to whole microseconds */
+            tv.tv_sec = (time_t)(left / 1000000000u);
+            tv.tv_usec = (suseconds_t)(left % 1000000000u / 1000u);
+            wait = &tv;
+        }
         FD_ZERO(&rfds);
         FD_SET(srv->listen_fd, &rfds);
         FD_SET(srv->wake[0], &rfds);
         for (int i = 0; i < max; i++) {
-            if (srv->clients[i].fd >= 0) {
+            /* A client that leaves its responses unread gets no more answers to build:
+             * its requests wait in its own socket until it reads or the timeout drops it. */
+            if (srv->clients[i].fd >= 0 && srv->clients[i].unsent_since_ns == 0) {
                 FD_SET(srv->clients[i].fd, &rfds);
                 if (srv->clients[i].fd > top)
                     top = srv->clients[i].fd;
             }
         }
-        if (select(top + 1, &rfds, NULL, NULL, NULL) < 0) {
+        int ready = select(top + 1, &rfds, NULL, NULL, wait);
+        if (ready < 0) {
             if (errno == EINTR)
                 continue;
             log_msg(srv->rt->log, LOG_ERROR, "modbus: select failed: %s", strerror(errno));
             usleep(10000);
             continue;
         }
+        if (ready == 0)
+            continue;                                     /* a timeout is due */
         if (FD_ISSET(srv->wake[0], &rfds))
             break;
-        for (int i = 0; i < max; i++)
-            if (srv->clients[i].fd >= 0 && FD_ISSET(srv->clients[i].fd, &rfds))
-                read_client(srv, &srv->clients[i]);
+        /* Clients already served first (the CNC), then the newcomers and the suspects. */
+        for (int pass = 0; pass < 2; pass++)
+            for (int i = 0; i < max; i++) {
+                client_t *c = &srv->clients[i];
+                if (c->fd >= 0 && (c->served > 0) == (pass == 0) && FD_ISSET(c->fd, &rfds)) {
+                    FD_CLR(c->fd, &rfds);
+                    read_client(srv, c);
+                }
+            }
         if (FD_ISSET(srv->listen_fd, &rfds))
             accept_clients(srv);
     }
 
     for (int i = 0; i < max; i++)
         if (srv->clients[i].fd >= 0)
-            close_client(srv, &srv->clients[i], "runtime stopping");
+            close_client(srv, &srv->clients[i], EV_STOPPING, "%s", "");
+    flush_events(srv, now_ns(), true);
     return NULL;
 }
 
@@ -436,6 +749,7 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
     if (!srv)
         return -1;
     srv->rt = rt;
+    srv->frame_timeout_ns = (uint64_t)opt->frame_timeout_ms * 1000000u;
     srv->listen_fd = srv->wake[0] = srv->wake[1] = -1;
     srv->clients = calloc((size_t)opt->max_clients, sizeof *srv->clients);
     if (!srv->clients) {
@@ -458,7 +772,7 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
         destroy(srv);
         return -1;
     }
-    srv->listen_fd = modbus_tcp_listen(srv->ctx, 64);
+    srv->listen_fd = modbus_tcp_listen(srv->ctx, LISTEN_BACKLOG);
     if (srv->listen_fd < 0) {
         log_msg(rt->log, LOG_ERROR, "modbus: cannot listen on %s:%d: %s", opt->bind, opt->port,
                 modbus_strerror(errno));
@@ -485,8 +799,9 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
                                      __builtin_popcount(opt->allow[i].mask));
         }
     }
-    log_msg(rt->log, LOG_INFO, "modbus: listening on %s:%u (max %d clients, clients allowed from %s)",
-            opt->bind, ntohs(bound.sin_port), opt->max_clients, allow_text);
+    log_msg(rt->log, LOG_INFO, "modbus: listening on %s:%u (max %d clients, clients allowed from %s, "
+            "frame timeout %d ms%s)", opt->bind, ntohs(bound.sin_port), opt->max_clients, allow_text,
+            opt->frame_timeout_ms, opt->read_only ? ", READ-ONLY: every write refused" : "");
 
     update_counters(srv);
     if (pthread_create(&srv->thread, NULL, server_thread, srv) != 0) {

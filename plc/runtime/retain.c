@@ -16,6 +16,11 @@
  *  28  N  payload
  *  28+N 4 CRC-32 (IEEE) of bytes 0 .. 28+N-1
  *
+ * One runtime per file: <file>.lock carries a POSIX record lock for as long
+ * as the store is open (the kernel drops it when the process dies, kill -9
+ * included) and the holder's pid; a second runtime given the same file stops
+ * at start-up naming that pid.
+ *
  * Saving: <file>.tmp is written, fsync'ed, renamed over <file>, and the
  * directory is fsync'ed, so the file on disk is always one complete save,
  * whatever instant the process is killed at.  The scan thread only compares
@@ -51,6 +56,7 @@ struct retain_store {
     char path[PATH_MAX];
     char tmp_path[PATH_MAX + 8];
     char dir[PATH_MAX];
+    int lock_fd;                  /* holds the lock on <file>.lock; -1: none */
     uint32_t layout;
     size_t size;                  /* payload bytes */
 
@@ -190,6 +196,57 @@ static void scatter(retain_store_t *rs, const uint8_t *in)
     }
 }
 
+/* ------------------------------------------------------------------ lock */
+
+/* The pid holding the lock on fd: the kernel's answer, else the pid the holder
+ * wrote into the file (another pid namespace), else 0. */
+static long lock_holder(int fd)
+{
+    struct flock who = { .l_type = F_WRLCK, .l_whence = SEEK_SET };
+    char text[24] = "";
+
+    if (fcntl(fd, F_GETLK, &who) == 0 && who.l_type != F_UNLCK && who.l_pid > 0)
+        return (long)who.l_pid;
+    ssize_t n = pread(fd, text, sizeof text - 1, 0);
+    return n > 0 ? strtol(text, NULL, 10) : 0;
+}
+
+/* Take <file>.lock for this runtime, or say who has it.  Returns 0 or -1. */
+static int lock_store(retain_store_t *rs)
+{
+    char lock_path[PATH_MAX + 8], pid_text[24];
+    struct flock fl = { .l_type = F_WRLCK, .l_whence = SEEK_SET };
+
+    snprintf(lock_path, sizeof lock_path, "%s.lock", rs->path);
+    int fd = open(lock_path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    if (fd < 0) {
+        log_msg(rs->rt->log, LOG_ERROR, "retain: cannot open the lock file %s: %s", lock_path, strerror(errno));
+        return -1;
+    }
+    if (fcntl(fd, F_SETLK, &fl) != 0) {
+        if (errno == EACCES || errno == EAGAIN)
+            log_msg(rs->rt->log, LOG_ERROR, "retain: %s is in use by another runtime (pid %ld holds %s); give "
+                    "each runtime its own retain file", rs->path, lock_holder(fd), lock_path);
+        else
+            log_msg(rs->rt->log, LOG_ERROR, "retain: cannot lock %s: %s", lock_path, strerror(errno));
+        close(fd);
+        return -1;
+    }
+    int n = snprintf(pid_text, sizeof pid_text, "%ld\n", (long)getpid());
+    if (ftruncate(fd, 0) != 0 || pwrite(fd, pid_text, (size_t)n, 0) != n)
+        log_msg(rs->rt->log, LOG_WARN, "retain: cannot write the pid into %s: %s", lock_path, strerror(errno));
+    rs->lock_fd = fd;
+    return 0;
+}
+
+/* The file stays (removing it would let two runtimes lock two different inodes). */
+static void unlock_store(retain_store_t *rs)
+{
+    if (rs->lock_fd >= 0)
+        close(rs->lock_fd);
+    rs->lock_fd = -1;
+}
+
 /* ------------------------------------------------------------- restore */
 
 static void reject(retain_store_t *rs, const char *why)
@@ -284,12 +341,25 @@ static int write_all(int fd, const uint8_t *p, size_t n)
     return 0;
 }
 
+/* A rename is durable only once the directory holding it is on disk. */
+static int sync_directory(const retain_store_t *rs)
+{
+    int dfd = open(rs->dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+
+    if (dfd < 0)
+        return -1;
+    int rc = fsync(dfd), saved = errno;
+    close(dfd);
+    errno = saved;
+    return rc;
+}
+
 static int save_file(retain_store_t *rs, uint64_t generation)
 {
     uint8_t *f = rs->file_buf;
     const size_t total = RETAIN_HEADER + rs->size + RETAIN_TRAILER;
     const char *step = "open";
-    int fd, dfd;
+    int fd;
 
     memcpy(f, RETAIN_MAGIC, 8);
     put32(f + 8, RETAIN_VERSION);
@@ -316,11 +386,9 @@ static int save_file(retain_store_t *rs, uint64_t generation)
     step = "rename";
     if (rename(rs->tmp_path, rs->path) != 0)
         goto fail;
-    dfd = open(rs->dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd >= 0) {
-        fsync(dfd);
-        close(dfd);
-    }
+    step = "directory fsync";
+    if (sync_directory(rs) != 0)
+        goto fail;
     if (rs->failing)
         log_msg(rs->rt->log, LOG_INFO, "retain: saving to %s works again", rs->path);
     rs->failing = false;
@@ -387,6 +455,11 @@ int retain_open(runtime_t *rt, retain_store_t **out)
         free(rs);
         return -1;
     }
+    rs->lock_fd = -1;
+    if (lock_store(rs) != 0) {
+        free(rs);
+        return -1;
+    }
 
     compute_layout(rs);
     size_t n = rs->size ? rs->size : 1;
@@ -396,6 +469,7 @@ int retain_open(runtime_t *rt, retain_store_t **out)
     rs->file_buf = calloc(1, RETAIN_HEADER + n + RETAIN_TRAILER);
     if (!rs->gather || !rs->seen || !rs->outbox || !rs->file_buf) {
         free(rs->gather); free(rs->seen); free(rs->outbox); free(rs->file_buf);
+        unlock_store(rs);
         free(rs);
         return -1;
     }
@@ -409,6 +483,7 @@ int retain_open(runtime_t *rt, retain_store_t **out)
     if (pthread_create(&rs->writer, NULL, writer_thread, rs) != 0) {
         log_msg(rt->log, LOG_ERROR, "retain: cannot start the writer thread");
         free(rs->gather); free(rs->seen); free(rs->outbox); free(rs->file_buf);
+        unlock_store(rs);
         free(rs);
         return -1;
     }
@@ -482,6 +557,7 @@ void retain_close(runtime_t *rt)
     pthread_mutex_destroy(&rs->mu);
     pthread_cond_destroy(&rs->cv);
     free(rs->gather); free(rs->seen); free(rs->outbox); free(rs->file_buf);
+    unlock_store(rs);
     free(rs);
     rt->retain = NULL;
 }

@@ -80,7 +80,9 @@ enum diag_offset {
     DIAG_SCAN_P50_US = 44,     /* u32 */
     DIAG_WAKE_P50_US = 46,     /* u32 */
     DIAG_UPTIME_S = 48,        /* u32: seconds since the scan loop started */
-    DIAG_SKIPPED = 50          /* u32: deadlines skipped after long overruns */
+    DIAG_SKIPPED = 50,         /* u32: deadlines skipped after long overruns */
+    DIAG_DROPPED = 52          /* u32: connections the server closed (frame timeout, slow
+                                  reader, slot reclaimed, not Modbus, socket error) */
 };
 
 #define DIAG_FLAG_REALTIME        0x0001u  /* scan thread runs SCHED_FIFO */
@@ -192,6 +194,8 @@ typedef struct rt_options {
     allow_entry_t allow[RT_MAX_ALLOW];
     int n_allow;                   /* 0: any client */
     int max_clients;
+    int frame_timeout_ms;          /* a request begun must be complete within this */
+    bool read_only;                /* every write function code answered with exception 01 */
     addr_set_t writable_coils;
     addr_set_t writable_registers;
     bool realtime;

@@ -74,6 +74,8 @@ FULL_CONFIG = """
 bind = "127.0.0.1"
 port = 5021
 max_clients = 4
+frame_timeout_ms = 500
+read_only = true
 allow = ["127.0.0.1", "10.1.2.0/24"]
 writable_coils = ["400-799"]
 writable_registers = ["1024-1030", 2000]
@@ -99,7 +101,7 @@ def test_a_full_config_is_read(tmp_path):
     cfg_file.write_text(FULL_CONFIG)
     cfg = runtime.load_config(cfg_file)
     assert cfg == runtime.RunConfig(
-        bind="127.0.0.1", port=5021, max_clients=4, allow=["127.0.0.1/32", "10.1.2.0/24"],
+        bind="127.0.0.1", port=5021, max_clients=4, frame_timeout_ms=500, read_only=True, allow=["127.0.0.1/32", "10.1.2.0/24"],
         writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none",
         retain_file=tmp_path / "state" / "plc.retain", retain_interval_ms=50, retain_registers=["1024-1027"],
         realtime=False, rt_priority=20, status_interval_s=2.5, watchdog_ms=250)
@@ -107,7 +109,8 @@ def test_a_full_config_is_read(tmp_path):
     assert argv[0] == "/x/plc-runtime"
     pairs = dict(zip(argv[1::2], argv[2::2]))
     assert pairs["--port"] == "5021" and pairs["--io"] == "none" and pairs["--max-clients"] == "4"
-    assert pairs["--allow"] == "127.0.0.1/32,10.1.2.0/24"
+    assert pairs["--allow"] == "127.0.0.1/32,10.1.2.0/24" and pairs["--frame-timeout"] == "500"
+    assert "--read-only" in argv
     assert pairs["--writable-registers"] == "1024-1030,2000-2000"
     assert pairs["--retain"] == str(tmp_path / "state" / "plc.retain")
     assert pairs["--watchdog"] == "250" and pairs["--status-interval"] == "2.5"
@@ -119,6 +122,7 @@ def test_defaults_and_empty_writable_lists():
     argv = runtime.runtime_argv(Path("rt"), cfg)
     assert argv[argv.index("--writable-coils") + 1] == "none"
     assert "--writable-registers" not in argv                     # the runtime's documented default
+    assert "--read-only" not in argv and argv[argv.index("--frame-timeout") + 1] == "2000"
     assert argv[argv.index("--retain") + 1] == str(Path("var") / "plc.retain")
     assert argv[argv.index("--bind") + 1] == "127.0.0.1" and argv[argv.index("--port") + 1] == "5020"
 
@@ -134,6 +138,8 @@ def test_defaults_and_empty_writable_lists():
     ("[modbus]\nbind = \"localhost\"\n", "[modbus] bind: 'localhost' is not an IPv4 address"),
     ("[modbus]\nallow = [\"10.0.0.0/33\"]\n", "[modbus] allow: '10.0.0.0/33' is not an IPv4 address"),
     ("[modbus]\nmax_clients = 0\n", "[modbus] max_clients: expected an integer 1..256"),
+    ("[modbus]\nframe_timeout_ms = 0\n", "[modbus] frame_timeout_ms: expected an integer 1..3600000, got 0"),
+    ("[modbus]\nread_only = \"yes\"\n", "[modbus] read_only: expected true or false, got 'yes'"),
     ("[modbus]\nwritable_coils = [\"400-800\"]\n", "[modbus] writable_coils: range '400-800' is outside 0-799"),
     ("[modbus]\nwritable_registers = [\"9-2\"]\n", "range '9-2' is outside"),
     ("[modbus]\nwritable_registers = [\"abc\"]\n", "'abc' is not an address or a range"),
@@ -207,5 +213,6 @@ def test_run_arguments_can_be_added_to_any_parser():
     args = parser.parse_args(["--bind", "127.0.0.1", "--port", "5021", "--io", "none", "--retain", "x.retain"])
     assert (args.bind, args.port, args.io, args.retain, args.config) == ("127.0.0.1", 5021, "none",
                                                                           Path("x.retain"), None)
+    assert args.read_only is None and parser.parse_args(["--read-only"]).read_only is True
     with pytest.raises(SystemExit):
         parser.parse_args(["--io", "gpio"])

@@ -174,6 +174,20 @@ class Runtime:
 
 # ---------------------------------------------------------------------- Modbus client
 
+# libmodbus's names (modbus.h)
+MODBUS_FC_READ_COILS = 0x01
+MODBUS_FC_READ_DISCRETE_INPUTS = 0x02
+MODBUS_FC_READ_HOLDING_REGISTERS = 0x03
+MODBUS_FC_READ_INPUT_REGISTERS = 0x04
+MODBUS_FC_WRITE_SINGLE_COIL = 0x05
+MODBUS_FC_WRITE_SINGLE_REGISTER = 0x06
+MODBUS_FC_WRITE_MULTIPLE_COILS = 0x0F
+MODBUS_FC_WRITE_MULTIPLE_REGISTERS = 0x10
+MODBUS_EXCEPTION_ILLEGAL_FUNCTION = 0x01
+MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS = 0x02
+MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE = 0x03
+
+
 class ModbusError(Exception):
     def __init__(self, function: int, code: int):
         super().__init__(f"exception {code} to function {function}")
@@ -290,6 +304,7 @@ DIAG = {  # offset, words
     "wake_mean_us": (28, 2), "wake_p99_us": (30, 2), "overruns": (32, 2), "clients": (34, 1),
     "requests": (36, 2), "exceptions": (38, 2), "refused": (40, 2), "retain_saves": (42, 2),
     "scan_p50_us": (44, 2), "wake_p50_us": (46, 2), "uptime_s": (48, 2), "skipped": (50, 2),
+    "dropped": (52, 2),
 }
 STATE_RUNNING, STATE_FAULTED = 1, 2
 FLAG_RETAIN_RESTORED, FLAG_RETAIN_REJECTED = 0x2, 0x4
