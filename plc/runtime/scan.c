@@ -318,6 +318,7 @@ int scan_run(runtime_t *rt)
             retain_after_scan(rt, woke);
 
         const uint64_t done = now_ns();
+        notify_after_scan(rt->notify, rt, done);
         hist_add(&s->scan, done - woke);
         deadline += period;
         if (done > deadline) {
@@ -338,6 +339,7 @@ int scan_run(runtime_t *rt)
     /* Program stopped, outputs safe, in the image and at the I/O.  Host writes
      * acknowledged since the last scan still reach memory and retained data
      * (unless the program had faulted: then the last good scan's values stay). */
+    notify_send(rt->notify, "STOPPING=1\nSTATUS=stopping: outputs going safe, saving retained data");
     const bool was_running = rt->state == PLC_STATE_RUNNING;
     rt->state = PLC_STATE_STOPPING;
     pthread_mutex_lock(&rt->lock);

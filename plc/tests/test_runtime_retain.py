@@ -10,18 +10,24 @@ from __future__ import annotations
 import random
 import signal
 import struct
+import zlib
 import sys
 import time
-import zlib
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
 import rt_harness as h  # noqa: E402
+from plc import retainfile  # noqa: E402
 
-HEADER = 28
-PAYLOAD = 6                                   # keep (2 bytes) + scans (4 bytes), native little-endian
+KEEP, SCANS = "CONFIG0.RES0.MAIN.KEEP", "CONFIG0.RES0.MAIN.SCANS"
+HEADER = retainfile.HEADER
+
+
+def with_crc(data: bytes) -> bytes:
+    """The file with its CRC made right again (damage the CRC cannot see)."""
+    return data[:-4] + struct.pack("<I", zlib.crc32(data[:-4]))
 
 
 @pytest.fixture(scope="module")
@@ -29,18 +35,16 @@ def binary() -> Path:
     return h.runtime_binary()
 
 
-def parse(path: Path, payload: int = PAYLOAD) -> dict:
-    """Check a retain file the way the runtime must (magic, size, CRC) and decode it."""
-    data = path.read_bytes()
-    assert len(data) == HEADER + payload + 4, f"size {len(data)}"
-    assert data[:8] == b"ATCPLCR1"
-    version, layout, gen_lo, gen_hi, length = struct.unpack("<IIIII", data[8:28])
-    assert version == 1 and length == payload
-    (crc,) = struct.unpack("<I", data[-4:])
-    assert zlib.crc32(data[:-4]) == crc, "CRC"
-    out = {"layout": layout, "generation": gen_hi << 32 | gen_lo}
-    if payload == PAYLOAD:
-        out["keep"], out["scans"] = struct.unpack("<hI", data[HEADER:HEADER + payload])
+def parse(path: Path) -> dict:
+    """Check a retain file the way the runtime must (magic, size, CRC, entry table) and decode it."""
+    f = retainfile.decode(path.read_bytes())
+    assert f.version == 2
+    out = {"generation": f.generation, "entries": f.entries}
+    active = f.active()
+    if KEEP in active:
+        out["keep"] = active[KEEP].number()
+    if SCANS in active:
+        out["scans"] = active[SCANS].number()
     return out
 
 
@@ -59,7 +63,7 @@ def test_retained_values_survive_a_restart(binary, tmp_path):
         h.wait_until(lambda: h.read_diag(c)["retain_saves"] >= 1, 2, "the save counter")
         _, scans_before = keep_and_scans(c)
     with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
-        rt.wait_for(r"retain: restored 6 bytes from ")
+        rt.wait_for(r"retain: restored 2 of 2 values from ")
         h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         keep, scans = keep_and_scans(c)
         assert keep == 1234                                  # %MW20 is 0 now: only the retained value
@@ -87,12 +91,37 @@ def test_retained_holding_registers(binary, tmp_path):
     with h.Runtime(binary, *args) as rt, h.Client(rt.port) as c:
         c.write_registers(1100, [11, 12, 13, 14, 15])        # 1104 is not retained
         c.write_registers(2100, [0xABCD, 0x1234])            # %MD26
-    assert f.stat().st_size == HEADER + PAYLOAD + 12 + 4
+    saved = {e.path: (e.type, e.where, e.number()) for e in parse(f)["entries"]}
+    assert saved == {KEEP: ("INT", "", 0), SCANS: ("UDINT", "", saved[SCANS][2]),
+                     "%MW76": ("WORD", "%MW76", 11), "%MW77": ("WORD", "%MW77", 12),
+                     "%MW78": ("WORD", "%MW78", 13), "%MW79": ("WORD", "%MW79", 14),
+                     "HR2100": ("WORD", "HR2100", 0xABCD), "HR2101": ("WORD", "HR2101", 0x1234)}
     with h.Runtime(binary, *args) as rt, h.Client(rt.port) as c:
         assert c.read_holding(1100, 5) == [11, 12, 13, 14, 0]
         assert c.read_holding(2100, 2) == [0xABCD, 0x1234]
-    with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt:    # other registers: other layout
-        rt.wait_for(r"rejected \(size 50 bytes, expected 38\)")
+
+
+def test_registers_no_longer_retained_are_named_and_kept_aside(binary, tmp_path):
+    f = tmp_path / "plc.retain"
+    with h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-registers", "1100-1101") as rt, \
+            h.Client(rt.port) as c:
+        c.write_register(1024 + 20, 99)
+        c.write_registers(1100, [7, 8])
+        h.wait_until(lambda: keep_and_scans(c)[0] == 99, 2, "keep = 99")
+    with h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-registers", "1100") as rt, \
+            h.Client(rt.port) as c:
+        rt.wait_for(r"warning: retain: %MW77 \(WORD at %MW77\) is not retained by this program: its saved value "
+                    r"is kept aside in the file")
+        rt.wait_for(r"restored 3 of 3 values .*\(0 new, 1 kept aside now, 0 from earlier versions\)")
+        assert keep_and_scans(c)[0] == 99 and c.read_holding(1100, 2) == [7, 0]
+        assert h.read_diag(c)["flags"] & h.FLAG_RETAIN_RESTORED
+    aside = [e for e in parse(f)["entries"] if e.kept_aside]
+    assert [(e.path, e.number()) for e in aside] == [("%MW77", 8)]
+    with h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-registers", "1100-1101") as rt, \
+            h.Client(rt.port) as c:                           # the earlier layout again: the value comes back
+        rt.wait_for(r"restored 4 of 4 values")
+        assert c.read_holding(1100, 2) == [7, 8]
+    assert not any(e.kept_aside for e in parse(f)["entries"])
 
 
 def make_saved_file(binary: Path, f: Path, keep: int) -> None:
@@ -104,11 +133,12 @@ def make_saved_file(binary: Path, f: Path, keep: int) -> None:
 
 @pytest.mark.parametrize("damage, why", [
     (lambda d: d[:HEADER] + bytes([d[HEADER] ^ 0x40]) + d[HEADER + 1:], r"CRC mismatch: the file is corrupt"),
-    (lambda d: d[:-1], r"size 37 bytes, expected 38"),
-    (lambda d: b"", r"size 0 bytes, expected 38"),
+    (lambda d: d[:-1], r"body length differs from the file size: the file is truncated or corrupt"),
+    (lambda d: b"", r"size 0 bytes, not a retain file of this runtime"),
     (lambda d: b"XXXXXXXX" + d[8:], r"not a retain file"),
-    (lambda d: d[:8] + b"\x02" + d[9:], r"unknown format version"),
-], ids=["flipped-bit", "truncated", "empty", "magic", "version"])
+    (lambda d: d[:8] + b"\x07" + d[9:], r"unknown format version"),
+    (lambda d: with_crc(d[:12] + b"\x09" + d[13:]), r"malformed entry table: the file is corrupt"),
+], ids=["flipped-bit", "truncated", "empty", "magic", "version", "entry-count"])
 def test_a_damaged_file_is_reported_and_ignored(binary, tmp_path, damage, why):
     f = tmp_path / "plc.retain"
     make_saved_file(binary, f, 555)
@@ -125,19 +155,41 @@ def test_a_damaged_file_is_reported_and_ignored(binary, tmp_path, damage, why):
     assert parse(f)["keep"] == 0                             # a fresh, valid file replaced it
 
 
-def test_a_file_from_another_program_is_rejected(binary, tmp_path):
+def test_a_new_retained_variable_starts_from_its_initial_value_and_the_others_are_kept(binary, tmp_path):
     f = tmp_path / "plc.retain"
-    make_saved_file(binary, f, 321)
-    other_hash = h.runtime_binary(FIXTURE_LAYOUT_HASH="0x0badcafeu")
-    with h.Runtime(other_hash, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
-        rt.wait_for(r"rejected \(layout hash differs: saved by a different program\)")
-        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
-        assert keep_and_scans(c)[0] == 0
     make_saved_file(binary, f, 321)
     more = h.runtime_binary(FIXTURE_EXTRA_RETAIN=1)
     with h.Runtime(more, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
-        rt.wait_for(r"rejected \(size 38 bytes, expected 42\)")
+        rt.wait_for(r"retain: CONFIG0.RES0.MAIN.EXTRA \(DINT\) has no saved value: it starts from its initial value")
+        rt.wait_for(r"retain: restored 2 of 3 values")
         h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
+        assert keep_and_scans(c)[0] == 321
+    with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
+        rt.wait_for(r"warning: retain: CONFIG0.RES0.MAIN.EXTRA \(DINT\) is not retained by this program")
+        assert keep_and_scans(c)[0] == 321
+
+
+def v1_file(keep: int, scans: int, layout_hash: int = 0x5EED0001) -> bytes:
+    """A file as the first release of the runtime wrote it for the fixture (one block, layout hash)."""
+    h32 = zlib.crc32(struct.pack("<I", layout_hash))
+    for path, plc_type, size in ((KEEP, 3, 2), (SCANS, 8, 4)):           # PLC_T_INT, PLC_T_UDINT
+        h32 = zlib.crc32(path.encode() + b"\0", h32)
+        h32 = zlib.crc32(struct.pack("<II", plc_type, size), h32)
+    body = struct.pack("<hI", keep, scans)
+    data = b"ATCPLCR1" + struct.pack("<IIIII", 1, h32, 5, 0, len(body)) + body
+    return data + struct.pack("<I", zlib.crc32(data))
+
+
+def test_a_file_of_format_version_1_is_read_once_and_rewritten_as_version_2(binary, tmp_path):
+    f = tmp_path / "plc.retain"
+    f.write_bytes(v1_file(-4321, 10))
+    with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
+        rt.wait_for(r"retain: restored 2 values from .*\(format version 1; saved as version 2 from now on\)")
+        assert keep_and_scans(c)[0] == -4321
+    assert parse(f)["keep"] == -4321
+    f.write_bytes(v1_file(55, 10, layout_hash=0x0BADCAFE))
+    with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
+        rt.wait_for(r"rejected \(format version 1 file saved by a different program\)")
         assert keep_and_scans(c)[0] == 0
 
 
@@ -157,7 +209,7 @@ def test_kill_9_during_retained_writes_never_loses_or_corrupts_the_last_save(tmp
         try:
             rt.start()
             if saved_before:
-                assert "retain: restored 6 bytes" in rt.log, rt.log
+                assert "retain: restored 2 of 2 values" in rt.log, rt.log
                 assert "rejected" not in rt.log, rt.log
             if saved_before and trial % 20 == 1:             # the runtime applied exactly that file
                 with h.Client(rt.port) as c:
