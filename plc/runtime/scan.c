@@ -318,6 +318,8 @@ int scan_run(runtime_t *rt)
             retain_after_scan(rt, woke);
 
         const uint64_t done = now_ns();
+        if (s->scans == 1)      /* upgrades measure the switch-over up to this line (monotonic clock) */
+            log_msg(rt->log, LOG_INFO, "first scan done at monotonic %.6f s", done / 1e9);
         notify_after_scan(rt->notify, rt, done);
         hist_add(&s->scan, done - woke);
         deadline += period;
@@ -351,7 +353,8 @@ int scan_run(runtime_t *rt)
     pthread_mutex_lock(&rt->io_lock);
     rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, no_words);
     pthread_mutex_unlock(&rt->io_lock);
-    log_msg(rt->log, LOG_INFO, "outputs safe (all coils cleared, I/O outputs at zero)");
+    log_msg(rt->log, LOG_INFO, "outputs safe (all coils cleared, I/O outputs at zero) at monotonic %.6f s",
+            now_ns() / 1e9);
     if (was_running)
         retain_capture(rt);
     log_summary(rt);

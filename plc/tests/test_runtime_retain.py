@@ -113,6 +113,7 @@ def test_registers_no_longer_retained_are_named_and_kept_aside(binary, tmp_path)
         rt.wait_for(r"warning: retain: %MW77 \(WORD at %MW77\) is not retained by this program: its saved value "
                     r"is kept aside in the file")
         rt.wait_for(r"restored 3 of 3 values .*\(0 new, 1 kept aside now, 0 from earlier versions\)")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         assert keep_and_scans(c)[0] == 99 and c.read_holding(1100, 2) == [7, 0]
         assert h.read_diag(c)["flags"] & h.FLAG_RETAIN_RESTORED
     aside = [e for e in parse(f)["entries"] if e.kept_aside]
@@ -120,6 +121,7 @@ def test_registers_no_longer_retained_are_named_and_kept_aside(binary, tmp_path)
     with h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-registers", "1100-1101") as rt, \
             h.Client(rt.port) as c:                           # the earlier layout again: the value comes back
         rt.wait_for(r"restored 4 of 4 values")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         assert c.read_holding(1100, 2) == [7, 8]
     assert not any(e.kept_aside for e in parse(f)["entries"])
 
@@ -166,6 +168,7 @@ def test_a_new_retained_variable_starts_from_its_initial_value_and_the_others_ar
         assert keep_and_scans(c)[0] == 321
     with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
         rt.wait_for(r"warning: retain: CONFIG0.RES0.MAIN.EXTRA \(DINT\) is not retained by this program")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         assert keep_and_scans(c)[0] == 321
 
 
@@ -185,11 +188,13 @@ def test_a_file_of_format_version_1_is_read_once_and_rewritten_as_version_2(bina
     f.write_bytes(v1_file(-4321, 10))
     with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
         rt.wait_for(r"retain: restored 2 values from .*\(format version 1; saved as version 2 from now on\)")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         assert keep_and_scans(c)[0] == -4321
     assert parse(f)["keep"] == -4321
     f.write_bytes(v1_file(55, 10, layout_hash=0x0BADCAFE))
     with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
         rt.wait_for(r"rejected \(format version 1 file saved by a different program\)")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= 1, 2, "the first scan")
         assert keep_and_scans(c)[0] == 0
 
 
