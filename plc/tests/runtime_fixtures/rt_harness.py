@@ -79,11 +79,11 @@ def wait_until(predicate: Callable[[], object], timeout: float, what: str, step:
 class Runtime:
     """A running runtime process; its stderr is collected line by line."""
 
-    def __init__(self, binary: Path, *args: str, cwd: Path | None = None, raw: bool = False):
+    def __init__(self, binary: Path, *args: str, cwd: Path | None = None, raw: bool = False,
+                 env: dict[str, str] | None = None):
         """Start `binary` with test defaults (any free port, no status lines) before `args`,
-        or with exactly `args` when raw."""
-        env = dict(os.environ)
-        env.update(SANITIZER_ENV)
+        or with exactly `args` when raw; `env` is added to the environment."""
+        env = {**os.environ, **SANITIZER_ENV, **(env or {})}
         defaults = [] if raw else ["--port", "0", "--status", "log", "--status-interval", "3600"]
         self.argv = [str(binary), *defaults, *args]
         self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,

@@ -1,0 +1,305 @@
+"""The soft-PLC as a systemd service: the unit `plc deploy service` writes, the notify protocol the runtime
+speaks to systemd (through a NOTIFY_SOCKET this test owns), journald priorities, a kill -9 and restart that
+keeps the tool in the spindle, and program upgrades on a running machine (`plc deploy upgrade/rollback`).
+
+systemd itself does not run here: a shell loop stands in for `Restart=always` (it starts PREFIX/current/run
+again whenever the runtime exits, as systemd does with the unit's ExecStart).  Loopback only; every wait is
+bounded (SLOW multiplier under the sanitizers).
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
+import rt_harness as h  # noqa: E402
+from plc import retainfile  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+TOOL = "CONFIG0.RES0.ATC.TOOLINSPINDLE"
+
+
+def plc_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "plc.cli", *args], cwd=REPO / "plc", capture_output=True,
+                          text=True, timeout=timeout * h.SLOW)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def deployment(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("deploy") / "atc-plc"
+    result = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out))
+    assert result.returncode == 0, result.stderr
+    assert f"run configuration {REPO / 'configs' / 'runtime.toml'}" in result.stderr
+    return out
+
+
+# ---------------------------------------------------------------------------- the unit
+
+def test_the_unit_asks_for_what_a_machine_needs(deployment):
+    unit = (deployment / "atc-plc.service").read_text()
+    for line in ("Type=notify", "NotifyAccess=main", f"ExecStart={deployment}/current/run", "Restart=always",
+                 "WatchdogSec=3", "StateDirectory=atc-plc", "LimitRTPRIO=50", "LimitMEMLOCK=infinity",
+                 "StandardError=journal", "WantedBy=multi-user.target"):
+        assert re.search(rf"^{re.escape(line)}$", unit, re.M), line
+    run = (deployment / "current" / "run").read_text()
+    assert '--retain "$state/plc.retain"' in run and "--retain-registers 1024-1025,1040-1089" in run
+    layout = (deployment / "current" / "retain-layout.txt").read_text()
+    assert f"retain\t{TOOL}\tINT\t%MW0\t2" in layout
+    readme = (deployment / "README.md").read_text()
+    assert "sudo ./install.sh" in readme and "sudo ./uninstall.sh" in readme
+
+
+def test_the_unit_passes_systemd_analyze_verify(deployment):
+    tool = shutil.which("systemd-analyze")
+    if tool is None:
+        pytest.skip("systemd-analyze is not installed (Debian package systemd; scripts/setup installs it)")
+    result = subprocess.run([tool, "verify", str(deployment / "atc-plc.service")], capture_output=True, text=True,
+                            timeout=60)
+    print(result.stdout, result.stderr)
+    assert result.returncode == 0, result.stderr
+    assert "atc-plc.service" not in result.stderr, result.stderr        # no warning about our unit
+
+
+# --------------------------------------------------------------------- notify protocol
+
+class NotifySocket:
+    """The service manager's end of NOTIFY_SOCKET: a datagram socket the test binds."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(str(path))
+        self.messages: list[tuple[float, str]] = []
+
+    def receive(self, timeout: float) -> list[str]:
+        """Every message that arrives within timeout seconds (each one split into its lines)."""
+        out = []
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return out
+            self.sock.settimeout(left)
+            try:
+                data = self.sock.recv(4096).decode()
+            except socket.timeout:
+                return out
+            self.messages.append((time.monotonic(), data))
+            out.extend(data.split("\n"))
+
+    def wait_for(self, text: str, timeout: float) -> list[str]:
+        seen: list[str] = []
+        deadline = time.monotonic() + timeout * h.SLOW
+        while time.monotonic() < deadline:
+            seen += self.receive(0.05)
+            if any(text in m for m in seen):
+                return seen
+        raise AssertionError(f"no {text!r} from the runtime; got {seen}")
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def notify(tmp_path):
+    s = NotifySocket(tmp_path / "notify.sock")
+    yield s
+    s.close()
+
+
+def test_ready_after_the_first_scan_then_watchdog_pings_while_scans_run(notify):
+    env = {"NOTIFY_SOCKET": str(notify.path), "WATCHDOG_USEC": "200000"}
+    with h.Runtime(h.runtime_binary(), "--no-rt", env=env) as rt, h.Client(rt.port) as c:
+        seen = notify.wait_for("READY=1", 5)
+        assert seen[0] == "READY=1" and h.read_diag(c)["scans"] >= 1
+        assert "watchdog every 200 ms (pinged every 50 ms" in rt.log
+        pings = notify.wait_for("WATCHDOG=1", 5)
+        while sum(m == "WATCHDOG=1" for m in pings) < 5:
+            pings += notify.wait_for("WATCHDOG=1", 5)
+        rc = rt.stop()
+    rt.assert_clean_exit(rc)
+    assert "STOPPING=1" in notify.wait_for("STOPPING=1", 5)
+
+
+def test_a_stuck_scan_stops_the_pings(notify):
+    env = {"NOTIFY_SOCKET": str(notify.path), "WATCHDOG_USEC": "200000"}
+    rt = h.Runtime(h.runtime_binary(), "--no-rt", "--watchdog", "100", env=env).start()
+    try:
+        with h.Client(rt.port) as c:
+            notify.wait_for("WATCHDOG=1", 5)
+            c.write_register(1024 + 10, 13)                   # the fixture loops forever in run()
+        rt.wait_for(r"watchdog: the program has been inside run\(\)")
+        notify.receive(0.3)                                   # a ping sent before the scan got stuck
+        later = notify.receive(1.0)                           # 20 ping periods: none may come
+        assert "WATCHDOG=1" not in later, later
+    finally:
+        rt.kill()                                             # what systemd does after WatchdogSec
+
+
+def test_a_faulted_program_keeps_pinging_and_says_why(notify):
+    env = {"NOTIFY_SOCKET": str(notify.path), "WATCHDOG_USEC": "200000"}
+    with h.Runtime(h.runtime_binary(), "--no-rt", env=env) as rt, h.Client(rt.port) as c:
+        notify.wait_for("READY=1", 5)
+        c.write_register(1024 + 10, 7)                        # division by zero: program stopped, outputs safe
+        seen = notify.wait_for("STATUS=FAULTED", 5)
+        assert any("fault kind 1 at line 42" in m for m in seen), seen
+        after = notify.wait_for("WATCHDOG=1", 5)
+        assert "WATCHDOG=1" in after
+
+
+def test_log_lines_carry_journald_priorities_when_stderr_is_the_journal(tmp_path):
+    log = tmp_path / "journal"
+    with open(log, "wb") as f:
+        st = os.fstat(f.fileno())
+        env = {**os.environ, **h.SANITIZER_ENV, "JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}
+        subprocess.run([str(h.runtime_binary()), "--port", "0", "--no-rt", "--duration", "0.3", "--watchdog", "0"],
+                       stdout=subprocess.DEVNULL, stderr=f, env=env, timeout=30 * h.SLOW, check=True)
+    lines = log.read_text().splitlines()
+    assert lines and all(re.match(r"<[346]>", line) for line in lines), lines
+    assert any(line.startswith("<4>warning: scan watchdog off") for line in lines), lines
+    assert any(line.startswith("<6>running CONFIG0") for line in lines), lines
+
+
+# ------------------------------------------------------------- crash, restart, upgrade
+
+class Service:
+    """PREFIX/current/run started again whenever it exits (systemd's Restart=always), on a free port."""
+
+    def __init__(self, prefix: Path, tmp: Path):
+        self.prefix, self.port = prefix, free_port()
+        self.state = tmp / "state"
+        self.state.mkdir(exist_ok=True)
+        self.log = tmp / "service.log"
+        self.pidfile = tmp / "runtime.pid"
+        loop = (f'while :; do "{prefix}/current/run" --port {self.port} --no-rt & echo $! > "{self.pidfile}"; '
+                'wait $! || sleep 0.2; done')
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen(["sh", "-c", loop], stdout=log, stderr=subprocess.STDOUT,
+                                         env={**os.environ, "STATE_DIRECTORY": str(self.state)},
+                                         start_new_session=True)
+        self.wait_running(0)
+
+    def text(self) -> str:
+        return self.log.read_text(errors="replace")
+
+    def wait_running(self, offset: int, timeout: float = 30) -> None:
+        """Wait for a first scan logged after byte `offset` of the log."""
+        h.wait_until(lambda: "first scan done" in self.text()[offset:], timeout, "the runtime's first scan")
+
+    def pid(self) -> int:
+        return int(self.pidfile.read_text())
+
+    def host(self, *words: str) -> str:
+        result = plc_cli("host", "--port", str(self.port), *words, timeout=90)
+        assert result.returncode == 0, f"{result.stdout}\n{result.stderr}\n{self.text()[-3000:]}"
+        return result.stdout
+
+    def saved_tool(self) -> int | None:
+        try:
+            return retainfile.read(self.state / "plc.retain").active()[TOOL].number()
+        except (retainfile.RetainFileError, KeyError):
+            return None
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGTERM)      # the loop and the runtime it started
+            try:
+                self.proc.wait(15 * h.SLOW)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(5)
+
+
+@pytest.fixture
+def service(deployment, tmp_path):
+    s = Service(deployment, tmp_path)
+    yield s
+    s.stop()
+
+
+def test_kill_9_restarts_the_runtime_and_the_tool_stays_in_the_spindle(service):
+    assert service.host("clear", "T5 M6").splitlines()[-1] == "tool 5 in spindle"
+    h.wait_until(lambda: service.saved_tool() == 5, 3, "the tool saved")
+    offset = len(service.text())
+    old = service.pid()
+    os.kill(old, signal.SIGKILL)
+    service.wait_running(offset)
+    assert service.pid() != old
+    assert "retain: restored 52 of 52 values" in service.text()[offset:]
+    out = service.host("status")
+    assert ": tool 5 in spindle" in out.splitlines()[0], out
+    assert service.host("T2 M6").splitlines()[-1] == "tool 2 in spindle"
+
+
+def app_with_tool_change_counter(tmp: Path) -> Path:
+    """st_src/ with one RETAIN variable more (an integrator's tool-change counter)."""
+    src = tmp / "st_src_v2"
+    shutil.copytree(REPO / "st_src", src)
+    main = src / "app" / "AtcMain.st"
+    text = main.read_text()
+    anchor = "(* retained (kept in %MW/%MD across restarts) *)\n"
+    assert anchor in text
+    main.write_text(text.replace(anchor, "VAR RETAIN\n    ToolChanges : UDINT; (* tool changes since "
+                                         "commissioning *)\nEND_VAR\n" + anchor, 1))
+    return src
+
+
+def test_upgrade_keeps_the_tool_refuses_a_loss_and_rolls_back(deployment, service, tmp_path):
+    config = str(REPO / "configs" / "runtime.toml")
+    restart = f'kill -TERM "$(cat {service.pidfile})"'
+    first = (deployment / "current").resolve()
+    assert service.host("clear", "T5 M6").splitlines()[-1] == "tool 5 in spindle"
+    h.wait_until(lambda: service.saved_tool() == 5, 3, "the tool saved")
+
+    # the issue's scenario: one RETAIN variable more
+    v2 = app_with_tool_change_counter(tmp_path)
+    offset = len(service.text())
+    up = plc_cli("deploy", "upgrade", "--prefix", str(deployment), "--src", str(v2), "--config", config,
+                 "--restart-command", restart, "--log", str(service.log))
+    assert up.returncode == 0, up.stderr + service.text()[offset:]
+    assert "TOOLCHANGES (UDINT) is new: it starts from its initial value" in up.stderr
+    switch = re.search(r"switch-over ([\d.]+) ms \(outputs safe -> first scan of ", up.stdout)
+    assert switch, up.stdout
+    print(f"switch-over {switch.group(1)} ms")
+    service.wait_running(offset)
+    second = (deployment / "current").resolve()
+    assert second != first and (deployment / "previous").resolve() == first
+    log = service.text()[offset:]
+    assert "has no saved value" in log and "TOOLCHANGES" in log and "rejected" not in log
+    assert ": tool 5 in spindle" in service.host("status").splitlines()[0]
+
+    # back to the sources without the counter: its value would be lost, so no upgrade without --force
+    releases = sorted(p.name for p in (deployment / "releases").iterdir())
+    refused = plc_cli("deploy", "upgrade", "--prefix", str(deployment), "--src", str(REPO / "st_src"), "--config",
+                      config, "--restart-command", "false", "--log", str(service.log))
+    assert refused.returncode == 1, refused.stderr
+    assert "error: CONFIG0.RES0.ATC.TOOLCHANGES (UDINT) is no longer retained" in refused.stderr
+    assert "upgrade refused: 1 retained value(s) would not be restored" in refused.stderr
+    assert (deployment / "current").resolve() == second
+    assert sorted(p.name for p in (deployment / "releases").iterdir()) == releases
+
+    # rollback: the first release again; the counter's value is kept aside, the tool stays
+    offset = len(service.text())
+    back = plc_cli("deploy", "rollback", "--prefix", str(deployment), "--restart-command", restart, "--log",
+                   str(service.log))
+    assert back.returncode == 0, back.stderr
+    assert (deployment / "current").resolve() == first and (deployment / "previous").resolve() == second
+    service.wait_running(offset)
+    assert "TOOLCHANGES (UDINT) is not retained by this program: its saved value is kept aside" in \
+        service.text()[offset:]
+    assert ": tool 5 in spindle" in service.host("status").splitlines()[0]
