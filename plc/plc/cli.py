@@ -105,6 +105,24 @@ def cmd_run(args) -> int:
         raise UserError(str(e)) from None
 
 
+def cmd_retain_show(args) -> int:
+    from . import retainfile
+    try:
+        f = retainfile.read(args.file)
+    except retainfile.RetainFileError as e:
+        print(f"plc retain: error: {args.file}: {e}", file=sys.stderr)
+        return 1
+    if f.version == 1:
+        print(f"{args.file}: format version 1 (one block of values without names: the runtime that reads it "
+              f"names them), generation {f.generation}")
+        return 0
+    print(f"{args.file}: format version {f.version}, generation {f.generation}, {len(f.entries)} entries "
+          f"({len(f.kept_aside())} kept aside)")
+    for e in f.entries:
+        print("  " + retainfile.describe(e))
+    return 0
+
+
 def add_compile_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="PATH", help=".st files or directories (searched recursively)")
     p.add_argument("--no-portability", action="store_true", help="do not warn about constructs MATIEC rejects")
@@ -138,10 +156,21 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("paths", nargs="*", metavar="PATH", help="ST files or directories (default: st_src/)")
     runtime.add_run_arguments(p)
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser("retain", help="read a retained-data file: plc retain show FILE", description=
+                       "Read a retained-data file of the runtime. Exit 0, or 1 when the file is damaged.")
+    rsub = p.add_subparsers(dest="retain_cmd", metavar="show")
+    rsub.required = True
+    q = rsub.add_parser("show", help="list every saved value with its name, type and location",
+                        description="Check a retained-data file (CRC, entry table) and list every saved value: "
+                                    "name, type, location, value; values kept aside (saved by an earlier program "
+                                    "version, not used by the present one) are marked.")
+    q.add_argument("file", type=Path, metavar="FILE", help="the retain file (e.g. var/plc.retain)")
+    q.set_defaults(func=cmd_retain_show)
     sub.add_parser("seq", help="check and compile tool-change sequences (plc seq --help)", add_help=False)
     sub.add_parser("map", help="check the register map and generate from it (plc map --help)", add_help=False)
     sub.add_parser("host", help="CNC host client: plc host \"T5 M6\" (plc host --help)", add_help=False)
-    sub.add_parser("deploy", help="bundle for OpenPLC: plc deploy openplc --out FILE.st", add_help=False)
+    sub.add_parser("deploy", help="bundle for OpenPLC (plc deploy openplc), install and upgrade our soft-PLC as a "
+                   "systemd service (plc deploy service|upgrade|rollback)", add_help=False)
     return ap
 
 

@@ -100,7 +100,7 @@ def read(path: Path) -> RetainFile:
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
-        raise RetainFileError(f"cannot read {path}: {exc.strerror}") from None
+        raise RetainFileError(f"cannot read it: {exc.strerror}") from None
     return decode(data)
 
 

@@ -8,6 +8,7 @@ Runs against the plain build, or the ASan/UBSan build with PLC_RUNTIME_SANITIZE=
 from __future__ import annotations
 
 import struct
+import subprocess
 import zlib
 import sys
 import time
@@ -204,3 +205,24 @@ def test_kill_9_during_retained_writes_never_loses_or_corrupts_a_value(tmp_path)
     assert result["corrupt"] == 0 and result["lost"] == 0 and result["rejected"] == 0, result
     assert result["applied_checked"] >= 5, result
     assert result["killed_mid_write"] >= 20, f"only {result['killed_mid_write']} of 200 kills hit a write in progress"
+
+
+def test_plc_retain_show_lists_every_value_and_marks_those_kept_aside(binary, tmp_path):
+    f = tmp_path / "plc.retain"
+    with h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-registers", "1100-1101") as rt, \
+            h.Client(rt.port) as c:
+        c.write_registers(1100, [7, 8])
+        c.write_register(1024 + 20, -3)
+        h.wait_until(lambda: keep_and_scans(c)[0] == -3, 2, "keep = -3")
+    with h.Runtime(binary, "--no-rt", "--retain", str(f), "--retain-registers", "1100"):
+        pass
+    cmd = [sys.executable, "-m", "plc.cli", "retain", "show", str(f)]
+    out = subprocess.run(cmd, cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert "format version 2" in lines[0] and "4 entries (1 kept aside)" in lines[0]
+    assert f"  {KEEP} : INT = -3" in lines and "  %MW76 : WORD at %MW76 = 7" in lines
+    assert "  %MW77 : WORD at %MW77 = 8  (kept aside: saved by an earlier program version)" in lines
+    f.write_bytes(f.read_bytes()[:-1])
+    bad = subprocess.run(cmd, cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 1 and "body length" in bad.stderr and "Traceback" not in bad.stderr

@@ -303,3 +303,50 @@ def test_upgrade_keeps_the_tool_refuses_a_loss_and_rolls_back(deployment, servic
     assert "TOOLCHANGES (UDINT) is not retained by this program: its saved value is kept aside" in \
         service.text()[offset:]
     assert ": tool 5 in spindle" in service.host("status").splitlines()[0]
+
+
+# ------------------------------------------------------------------- plc run PATHS
+
+class PlcRun:
+    """`plc run PATHS` on a free port with its own retain file; stderr (plc's and the runtime's) in a log."""
+
+    def __init__(self, tmp: Path, paths: list[Path]):
+        self.port, self.log = free_port(), tmp / f"run{len(list(tmp.glob('run*.log')))}.log"
+        cmd = [sys.executable, "-m", "plc.cli", "run", *map(str, paths), "--port", str(self.port), "--retain",
+               str(tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")]
+        with open(self.log, "wb") as log:
+            self.proc = subprocess.Popen(cmd, cwd=REPO / "plc", stdout=log, stderr=subprocess.STDOUT)
+        h.wait_until(lambda: "first scan done" in self.text() or self.proc.poll() is not None, 180, "plc run")
+        assert self.proc.poll() is None, self.text()
+
+    def text(self) -> str:
+        return self.log.read_text(errors="replace")
+
+    def host(self, *words: str) -> str:
+        result = plc_cli("host", "--port", str(self.port), *words, timeout=90)
+        assert result.returncode == 0, f"{result.stdout}\n{result.stderr}\n{self.text()[-3000:]}"
+        return result.stdout
+
+    def stop(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        self.proc.wait(15 * h.SLOW)
+
+
+def test_plc_run_with_paths_keeps_the_tool_through_a_program_with_one_retain_variable_more(tmp_path):
+    """The issue's scenario: plc run st_src, T5 M6, stop; one RETAIN variable more; plc run again: tool 5."""
+    first = PlcRun(tmp_path, [REPO / "st_src"])
+    try:
+        assert f"plc run: using {REPO / 'configs' / 'runtime.toml'} (the project's run configuration)" in first.text()
+        assert first.host("clear", "T5 M6").splitlines()[-1] == "tool 5 in spindle"
+    finally:
+        first.stop()
+    v2 = app_with_tool_change_counter(tmp_path)
+    second = PlcRun(tmp_path, [v2])
+    try:
+        log = second.text()
+        assert "plc run: no run configuration (the sources are outside the project)" in log
+        assert "rejected" not in log and "retain: restored 52 of 53 values" in log, log
+        assert "TOOLCHANGES (UDINT) has no saved value: it starts from its initial value" in log
+        assert ": tool 5 in spindle" in second.host("status").splitlines()[0]
+    finally:
+        second.stop()
