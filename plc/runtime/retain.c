@@ -84,12 +84,18 @@ typedef struct retain_entry {
     bool announced;               /* its start from the initial value is already explained */
 } retain_entry_t;
 
+/* A piece of text inside a file being read (not NUL-terminated). */
+typedef struct text_ref {
+    const char *p;
+    int n;
+} text_ref_t;
+
 /* One entry of a file being read (pointers into the file's buffer). */
 typedef struct saved_entry {
     const uint8_t *raw;           /* the whole entry, head included */
     size_t raw_len;
     uint8_t flags;
-    char path[256], type[512], where[ENTRY_NAME];
+    text_ref_t path, type, where;
     const uint8_t *value;
     uint32_t size;
     bool used;
@@ -392,13 +398,14 @@ static void reject(retain_store_t *rs, const char *why)
                 "values", rs->path, why);
 }
 
-static bool copy_text(char *dst, size_t cap, const uint8_t *src, size_t n)
+static bool same(text_ref_t t, const char *s)
 {
-    if (n >= cap || memchr(src, 0, n))
-        return false;
-    memcpy(dst, src, n);
-    dst[n] = 0;
-    return true;
+    return strlen(s) == (size_t)t.n && memcmp(t.p, s, (size_t)t.n) == 0;
+}
+
+static text_ref_t text_at(const uint8_t *p, size_t n)
+{
+    return (text_ref_t){ (const char *)p, (int)n };
 }
 
 /* Split the body of a version 2 file into entries; NULL when it is malformed. */
@@ -421,9 +428,11 @@ static saved_entry_t *parse_entries(const uint8_t *body, size_t len, uint32_t co
         if (len - at - ENTRY_HEAD < p + t + w || len - at - ENTRY_HEAD - p - t - w < size)
             goto bad;
         const uint8_t *text = h + ENTRY_HEAD;
-        if (!copy_text(s->path, sizeof s->path, text, p) || !copy_text(s->type, sizeof s->type, text + p, t)
-            || !copy_text(s->where, sizeof s->where, text + p + t, w) || p == 0)
+        if (p == 0 || memchr(text, 0, p + t + w))
             goto bad;
+        s->path = text_at(text, p);
+        s->type = text_at(text + p, t);
+        s->where = text_at(text + p + t, w);
         s->raw = h;
         s->raw_len = ENTRY_HEAD + p + t + w + size;
         s->flags = h[0];
@@ -440,10 +449,10 @@ bad:
     return NULL;
 }
 
-static retain_entry_t *entry_named(retain_store_t *rs, const char *path)
+static retain_entry_t *entry_named(retain_store_t *rs, text_ref_t path)
 {
     for (size_t i = 0; i < rs->n_entries; i++)
-        if (strcmp(rs->entries[i].path, path) == 0)
+        if (same(path, rs->entries[i].path))
             return &rs->entries[i];
     return NULL;
 }
@@ -467,14 +476,14 @@ static void match_entries(retain_store_t *rs, saved_entry_t *saved, uint32_t n_s
         retain_entry_t *e = &rs->entries[i];
         for (uint32_t k = 0; k < n_saved && !e->restored; k++) {
             saved_entry_t *s = &saved[k];
-            if (s->used || s->size != e->size || strcmp(s->path, e->path) != 0 || strcmp(s->type, e->type) != 0)
+            if (s->used || s->size != e->size || !same(s->path, e->path) || !same(s->type, e->type))
                 continue;
             apply(rs, e, s->value);
             s->used = true;
             restored++;
-            if (e->where[0] && strcmp(s->where, e->where) != 0)
-                log_msg(log, LOG_INFO, "retain: %s (%s) restored; it moved from %s to %s", e->path, e->type,
-                        s->where[0] ? s->where : "memory", e->where);
+            if (e->where[0] && !same(s->where, e->where))
+                log_msg(log, LOG_INFO, "retain: %s (%s) restored; it moved from %.*s to %s", e->path, e->type,
+                        s->where.n ? s->where.n : 6, s->where.n ? s->where.p : "memory", e->where);
         }
     }
     /* A register whose name is gone, by address and type (a renamed signal). */
@@ -484,14 +493,14 @@ static void match_entries(retain_store_t *rs, saved_entry_t *saved, uint32_t n_s
             continue;
         for (uint32_t k = 0; k < n_saved && !e->restored; k++) {
             saved_entry_t *s = &saved[k];
-            if (s->used || s->size != e->size || strcmp(s->where, e->where) != 0 || strcmp(s->type, e->type) != 0
+            if (s->used || s->size != e->size || !same(s->where, e->where) || !same(s->type, e->type)
                 || entry_named(rs, s->path))
                 continue;
             apply(rs, e, s->value);
             s->used = true;
             restored++;
-            log_msg(log, LOG_WARN, "retain: %s (%s) restored by address %s, where %s was saved (renamed?)",
-                    e->path, e->type, e->where, s->path);
+            log_msg(log, LOG_WARN, "retain: %s (%s) restored by address %s, where %.*s was saved (renamed?)",
+                    e->path, e->type, e->where, s->path.n, s->path.p);
         }
     }
     /* The rest of the file is kept aside, each value named. */
@@ -505,16 +514,18 @@ static void match_entries(retain_store_t *rs, saved_entry_t *saved, uint32_t n_s
             e->announced = true;
         if (s->flags & ENTRY_KEPT_ASIDE) {
             still++;
-            log_msg(log, LOG_INFO, "retain: %s (%s) still kept aside from an earlier program version", s->path,
-                    s->type);
+            log_msg(log, LOG_INFO, "retain: %.*s (%.*s) still kept aside from an earlier program version",
+                    s->path.n, s->path.p, s->type.n, s->type.p);
         } else if (e) {
             lost++;
-            log_msg(log, LOG_WARN, "retain: %s changed type from %s to %s: its saved value is kept aside in "
-                    "the file and %s starts from its initial value", s->path, s->type, e->type, s->path);
+            log_msg(log, LOG_WARN, "retain: %s changed type from %.*s to %s: its saved value is kept aside in "
+                    "the file and %s starts from its initial value", e->path, s->type.n, s->type.p, e->type,
+                    e->path);
         } else {
             lost++;
-            log_msg(log, LOG_WARN, "retain: %s (%s%s%s) is not retained by this program: its saved value is "
-                    "kept aside in the file", s->path, s->type, s->where[0] ? " at " : "", s->where);
+            log_msg(log, LOG_WARN, "retain: %.*s (%.*s%s%.*s) is not retained by this program: its saved value "
+                    "is kept aside in the file", s->path.n, s->path.p, s->type.n, s->type.p,
+                    s->where.n ? " at " : "", s->where.n, s->where.p);
         }
     }
     for (size_t i = 0; i < rs->n_entries; i++) {
@@ -573,19 +584,18 @@ static const char *restore_block(retain_store_t *rs, const uint8_t *buf, size_t 
     return NULL;
 }
 
-static char *read_file(retain_store_t *rs, uint8_t **out, size_t *len)
+static const char *read_file(retain_store_t *rs, uint8_t **out, size_t *len, char *why, size_t whylen)
 {
-    static char why[96];
     struct stat st;
     int fd = open(rs->path, O_RDONLY | O_CLOEXEC);
 
     *out = NULL;
     if (fd < 0) {
-        snprintf(why, sizeof why, "%s", strerror(errno));
+        snprintf(why, whylen, "%s", strerror(errno));
         return why;
     }
     if (fstat(fd, &st) != 0 || st.st_size < (off_t)(RETAIN_HEADER + RETAIN_TRAILER) || st.st_size > (1 << 28)) {
-        snprintf(why, sizeof why, "size %lld bytes, not a retain file of this runtime", (long long)st.st_size);
+        snprintf(why, whylen, "size %lld bytes, not a retain file of this runtime", (long long)st.st_size);
         close(fd);
         return why;
     }
@@ -599,8 +609,8 @@ static char *read_file(retain_store_t *rs, uint8_t **out, size_t *len)
     }
     close(fd);
     if (!buf || got != (size_t)st.st_size) {
+        snprintf(why, whylen, "%s", buf ? "short read" : "out of memory");
         free(buf);
-        snprintf(why, sizeof why, "%s", buf ? "short read" : "out of memory");
         return why;
     }
     *out = buf;
@@ -612,6 +622,7 @@ static void restore(retain_store_t *rs)
 {
     uint8_t *buf;
     size_t len;
+    char reason[96];
     const char *why;
 
     if (access(rs->path, F_OK) != 0 && errno == ENOENT) {
@@ -619,7 +630,7 @@ static void restore(retain_store_t *rs)
                 "initial values", rs->path);
         return;
     }
-    why = read_file(rs, &buf, &len);
+    why = read_file(rs, &buf, &len, reason, sizeof reason);
     if (!why && memcmp(buf, RETAIN_MAGIC, 8) != 0)
         why = "not a retain file";
     else if (!why && get32(buf + 8) == RETAIN_VERSION_BLOCK)
@@ -631,11 +642,13 @@ static void restore(retain_store_t *rs)
     else if (!why && crc32_update(0, buf, len - RETAIN_TRAILER) != get32(buf + len - RETAIN_TRAILER))
         why = "CRC mismatch: the file is corrupt";
     else if (!why) {
-        uint32_t count = get32(buf + 12);
-        saved_entry_t *saved = count > len ? NULL : parse_entries(buf + RETAIN_HEADER, len - RETAIN_HEADER -
-                                                                  RETAIN_TRAILER, count, &why);
-        if (!saved && !why)
+        const uint32_t count = get32(buf + 12);
+        const size_t body = len - RETAIN_HEADER - RETAIN_TRAILER;
+        saved_entry_t *saved = NULL;
+        if (count > body / ENTRY_HEAD)
             why = "entry count larger than the file: the file is corrupt";
+        else
+            saved = parse_entries(buf + RETAIN_HEADER, body, count, &why);
         if (saved) {
             rs->kept = malloc(len);
             if (!rs->kept)
@@ -818,7 +831,7 @@ int retain_open(runtime_t *rt, retain_store_t **out)
         return 0;
     }
     for (size_t i = 0; i < rs->n_entries; i++)
-        if (entry_head_len(&rs->entries[i]) - ENTRY_HEAD > 3 * 65535u) {
+        if (strlen(rs->entries[i].path) > UINT16_MAX || strlen(rs->entries[i].type) > UINT16_MAX) {
             log_msg(rt->log, LOG_ERROR, "retain: %s: name or type too long", rs->entries[i].path);
             free_store(rs);
             return -1;

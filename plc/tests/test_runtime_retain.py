@@ -138,8 +138,9 @@ def make_saved_file(binary: Path, f: Path, keep: int) -> None:
     (lambda d: b"", r"size 0 bytes, not a retain file of this runtime"),
     (lambda d: b"XXXXXXXX" + d[8:], r"not a retain file"),
     (lambda d: d[:8] + b"\x07" + d[9:], r"unknown format version"),
-    (lambda d: with_crc(d[:12] + b"\x09" + d[13:]), r"malformed entry table: the file is corrupt"),
-], ids=["flipped-bit", "truncated", "empty", "magic", "version", "entry-count"])
+    (lambda d: with_crc(d[:12] + b"\x03" + d[13:]), r"malformed entry table: the file is corrupt"),
+    (lambda d: with_crc(d[:12] + b"\xff\xff" + d[14:]), r"entry count larger than the file: the file is corrupt"),
+], ids=["flipped-bit", "truncated", "empty", "magic", "version", "entry-table", "entry-count"])
 def test_a_damaged_file_is_reported_and_ignored(binary, tmp_path, damage, why):
     f = tmp_path / "plc.retain"
     make_saved_file(binary, f, 555)
