@@ -9,6 +9,8 @@ Runs against the plain build, or the ASan/UBSan build with PLC_RUNTIME_SANITIZE=
 from __future__ import annotations
 
 import hashlib
+import os
+import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -181,3 +183,50 @@ def test_going_back_to_version_1_finds_the_values_kept_aside(base, tmp_path):
         assert c.read_holding(SHOW_A, 2) == [111, 222] and c.read_holding(TOOL, 1) == [5]
     aside = retainfile.read(retain).kept_aside()
     assert [(e.path, e.type, e.number()) for e in aside] == [(P + "B", "DINT", -5)]
+
+
+TYPES = """
+TYPE
+    E_Mode : (Auto, Manual);
+    ST_Pocket : STRUCT Tool : INT; Valid : BOOL; END_STRUCT;
+    T_Slot : INT (1..24);
+END_TYPE
+PROGRAM Main
+VAR RETAIN
+    Mode : E_Mode;
+    Pockets : ARRAY[1..3] OF ST_Pocket;
+    Slot : T_Slot := 1;
+    Name : STRING;
+END_VAR
+VAR CONSTANT
+    Limit : INT := 3;
+END_VAR
+VAR
+    Scratch : INT;
+END_VAR
+Scratch := Limit;
+END_PROGRAM
+CONFIGURATION Config0
+    VAR_GLOBAL RETAIN Counter : UDINT; END_VAR
+    RESOURCE Res0 ON PLC
+        TASK Fast(INTERVAL := T#4ms, PRIORITY := 0);
+        PROGRAM Prog WITH Fast : Main;
+    END_RESOURCE
+END_CONFIGURATION
+"""
+
+
+def test_the_compiler_names_each_retained_type_in_full():
+    """The type of a retained entry tells its storage apart: members, bounds and enum values included."""
+    binary = build(TYPES, "types")
+    out = subprocess.run([str(binary), "--describe-retain", "--retain-registers", "1030"], capture_output=True,
+                         text=True, timeout=30 * h.SLOW, env={**os.environ, **h.SANITIZER_ENV})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines() == [
+        "retain\tCONFIG0.COUNTER\tUDINT\t-\t4",
+        f"retain\t{P}MODE\tE_MODE(AUTO,MANUAL)\t-\t4",
+        f"retain\t{P}POCKETS\tARRAY[1..3] OF ST_POCKET{{TOOL:INT;VALID:BOOL}}\t-\t12",
+        f"retain\t{P}SLOT\tINT\t-\t2",
+        f"retain\t{P}NAME\tSTRING\t-\t128",
+        "retain\t%MW6\tWORD\t%MW6\t2",
+    ]
