@@ -347,6 +347,8 @@ in the spindle, pocket table) live in `/var/lib/{name}/{retain}`.
 - `LimitRTPRIO`, `LimitMEMLOCK=infinity`: SCHED_FIFO scan thread with locked memory.
 
 ## Upgrade the program on the running machine
+From an atc-plc checkout on this machine (`scripts/setup` installs the toolchain: gcc, libmodbus-dev, Python):
+
     plc deploy upgrade --prefix {prefix} [--src st_src] [--config configs/runtime.toml] [--force]
 
 builds the new version into `releases/`, compares its retained variables and register map with the running one
@@ -394,7 +396,10 @@ def switch_over_ms(lines: list[str]) -> float | None:
 def restart(command: str, log: Path | None, name: str, since: float, timeout: float) -> float | None:
     """Run the restart command, wait for the new version's first scan in the log; return the switch-over."""
     offset = log.stat().st_size if log is not None and log.exists() else 0
-    result = subprocess.run(command, shell=True, capture_output=True, text=True, timeout=timeout)
+    try:
+        result = subprocess.run(command, shell=True, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise DeployError(f"restart command {command!r} did not finish within {timeout:g} s") from None
     if result.returncode != 0:
         raise DeployError(f"restart command {command!r} failed ({result.returncode}): {result.stderr.strip()}")
     deadline = time.monotonic() + timeout
@@ -488,6 +493,7 @@ def cmd_upgrade(args) -> int:
 
 
 def _switch(args, prefix: Path, new: Path, old: Path, what: str) -> int:
+    before = release_of(prefix / "previous")
     point(prefix / "previous", old)
     point(prefix / "current", new)
     print(f"plc deploy: {what}: current -> {new.name}, previous -> {old.name}", file=sys.stderr)
@@ -496,7 +502,13 @@ def _switch(args, prefix: Path, new: Path, old: Path, what: str) -> int:
         print(f"plc deploy: restart the service to run {new.name} (systemctl restart {args.name})",
               file=sys.stderr)
         return EXIT_OK
-    ms = restart(command, args.log, args.name, time.time(), args.timeout)
+    try:
+        ms = restart(command, args.log, args.name, time.time(), args.timeout)
+    except DeployError as exc:               # the service was not restarted: the links go back
+        point(prefix / "current", old)
+        if before is not None:
+            point(prefix / "previous", before)
+        raise DeployError(f"{exc}; current -> {old.name} again") from None
     if ms is None:
         print("plc deploy: restarted; switch-over time not found in the log (see journalctl -u "
               f"{args.name})", file=sys.stderr)
