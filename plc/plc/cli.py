@@ -47,11 +47,7 @@ def cmd_build(args) -> int:
 
 
 def _inside(path: str, root: Path) -> bool:
-    try:
-        Path(path).resolve().relative_to(root.resolve())
-        return True
-    except ValueError:
-        return False
+    return Path(path).resolve().is_relative_to(root.resolve())
 
 
 def run_configuration(args, root: Path | None) -> Path | None:

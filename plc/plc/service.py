@@ -439,7 +439,7 @@ def _config(args, sources: list[Path]) -> Path | None:
         return args.config
     root = project_root()
     cfg = root / "configs" / "runtime.toml" if root else None
-    inside = root is not None and all(str(s.resolve()).startswith(str(root.resolve())) for s in sources)
+    inside = root is not None and all(s.resolve().is_relative_to(root.resolve()) for s in sources)
     if cfg is not None and cfg.exists() and inside:
         return cfg
     return None
@@ -453,10 +453,11 @@ def cmd_service(args) -> int:
     if (out / "current").exists():
         raise DeployError(f"{out} already holds a deployment (use plc deploy upgrade --prefix {out})")
     out.mkdir(parents=True, exist_ok=True)
-    print(f"plc deploy: run configuration {config or 'built-in defaults (none found)'}", file=sys.stderr)
+    if not args.quiet:
+        print(f"plc deploy: run configuration {config or 'built-in defaults (none found)'}", file=sys.stderr)
     release = build_release(out, sources, config, args.name, quiet=args.quiet)
     cfg = runtime.load_config(config) if config else runtime.RunConfig()
-    program = (release / "VERSION").read_text().split("program ", 1)[1].split()[0]
+    program = re.search(r"^program (\S+)", (release / "VERSION").read_text(), re.M).group(1)
     write_deployment(out, release, cfg, program, args.name, prefix, args.watchdog_sec, args.user)
     if not args.quiet:
         n = len(layout_of(release).retained)

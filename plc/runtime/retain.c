@@ -510,14 +510,13 @@ static void match_entries(retain_store_t *rs, saved_entry_t *saved, uint32_t n_s
             continue;
         keep_aside(rs, s);
         retain_entry_t *e = entry_named(rs, s->path);
-        if (e && !e->restored)
-            e->announced = true;
         if (s->flags & ENTRY_KEPT_ASIDE) {
             still++;
             log_msg(log, LOG_INFO, "retain: %.*s (%.*s) still kept aside from an earlier program version",
                     s->path.n, s->path.p, s->type.n, s->type.p);
         } else if (e) {
             lost++;
+            e->announced = !e->restored;
             log_msg(log, LOG_WARN, "retain: %s changed type from %.*s to %s: its saved value is kept aside in "
                     "the file and %s starts from its initial value", e->path, s->type.n, s->type.p, e->type,
                     e->path);
