@@ -116,7 +116,8 @@ typedef struct plc_program {
     uint32_t n_located;
     const plc_var_t *vars;
     uint32_t n_vars;
-    uint32_t layout_hash;            /* hash of the retained variables' paths, types and sizes */
+    uint32_t layout_hash;            /* hash of the retained variables' paths, types and sizes (hosts
+                                        use it only to accept retain files of the first, one-block format) */
     void (*init)(void);              /* (re)initialise every variable; clears the fault */
     /* Run the tasks due on this tick.  Returns 0, or the fault kind when the
      * program has faulted (now or earlier: a faulted program stays stopped
