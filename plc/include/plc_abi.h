@@ -16,7 +16,7 @@
 #include <stdint.h>
 #include <stddef.h>
 
-#define PLC_ABI_VERSION 1u
+#define PLC_ABI_VERSION 2u
 
 /* IEC elementary types as they appear in the located and variable tables. */
 typedef enum plc_type {
@@ -60,16 +60,26 @@ typedef struct plc_located {
     uint32_t index;
     uint8_t bit;
     void **ptr;            /* the generated pointer the host may rebind */
+    uint8_t retain;        /* 1 when declared RETAIN: the host keeps its value across restarts */
 } plc_located_t;
 
-/* Every variable of every program/global instance, for debugging, HMI and RETAIN. */
+/*
+ * Every variable of every program/global instance, for debugging, HMI and
+ * RETAIN.  The entries with retain set (and constant clear) are the retained
+ * variables' descriptor table: a host keeps each one by path and type_name,
+ * so a new program version gets back every value whose path and type it kept.
+ */
 typedef struct plc_var {
     const char *path;      /* upper-case dotted path */
     uint16_t type;         /* plc_type_t of the variable (OTHER for aggregates) */
     uint8_t retain;        /* 1 when declared RETAIN (or inside a RETAIN instance) */
     uint8_t constant;      /* 1 when declared CONSTANT */
-    void *addr;
+    void *addr;            /* where the value lives (its size bytes, native byte order) */
     uint32_t size;         /* bytes */
+    /* Full type, members and bounds included: "INT", "ARRAY[1..50] OF INT",
+     * "ST_POCKET{TOOL:INT;VALID:BOOL}", "E_MODE(AUTO,MANUAL)".  Two
+     * variables with equal type_name have the same storage layout. */
+    const char *type_name;
 } plc_var_t;
 
 /* Runtime faults: where MATIEC has undefined behaviour, ours stops the program. */
@@ -106,7 +116,8 @@ typedef struct plc_program {
     uint32_t n_located;
     const plc_var_t *vars;
     uint32_t n_vars;
-    uint32_t layout_hash;            /* hash of the retained variables' paths, types and sizes */
+    uint32_t layout_hash;            /* hash of the retained variables' paths, types and sizes (hosts
+                                        use it only to accept retain files of the first, one-block format) */
     void (*init)(void);              /* (re)initialise every variable; clears the fault */
     /* Run the tasks due on this tick.  Returns 0, or the fault kind when the
      * program has faulted (now or earlier: a faulted program stays stopped

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import __version__
+from . import __version__, runtime
 from .driver import UserError, compile_c, compile_sources, print_diagnostics
 
 
@@ -46,14 +46,36 @@ def cmd_build(args) -> int:
     return 0
 
 
+def _inside(path: str, root: Path) -> bool:
+    return Path(path).resolve().is_relative_to(root.resolve())
+
+
+def run_configuration(args, root: Path | None) -> Path | None:
+    """The run configuration `plc run` uses, said on stderr: --config, else the project's configs/runtime.toml
+    when every path belongs to the project, else none (built-in defaults)."""
+    if args.config is not None:
+        print(f"plc run: using {args.config}", file=sys.stderr)
+        return args.config
+    project_cfg = root / "configs" / "runtime.toml" if root is not None else None
+    if project_cfg is not None and project_cfg.exists() and all(_inside(p, root) for p in args.paths):
+        print(f"plc run: using {project_cfg} (the project's run configuration)", file=sys.stderr)
+        return project_cfg
+    why = "the sources are outside the project" if project_cfg is not None and project_cfg.exists() \
+        else "no project configs/runtime.toml found"
+    print(f"plc run: no run configuration ({why}): built-in defaults, retain file "
+          f"{runtime.DEFAULT_RETAIN_FILE}; located RETAIN variables are kept, other retained registers only "
+          "with --config", file=sys.stderr)
+    return None
+
+
 def cmd_run(args) -> int:
-    from . import runtime
     from .testrunner import project_root
     root = project_root()
     paths = args.paths or ([str(root / "st_src")] if root else [])
     if not paths:
         raise UserError("no ST sources given and no project st_src/ found from here")
-    if root is not None and not args.paths:
+    in_project = root is not None and all(_inside(p, root) for p in paths)
+    if in_project:
         from . import machine
         cfg = root / machine.DEFAULT_CONFIG
         if cfg.exists() and machine.check_and_generate(cfg, root / machine.DEFAULT_OUT, write=False,
@@ -67,10 +89,8 @@ def cmd_run(args) -> int:
         return 1
     if not res.program.configs:
         raise UserError("the sources have no CONFIGURATION: nothing to run")
-    if args.config is None and root is not None and not args.paths and (root / "configs" / "runtime.toml").exists():
-        # the project's run configuration (generated from the register map: host-writable ranges, retained %MW)
-        args.config = root / "configs" / "runtime.toml"
-        print(f"plc run: using {args.config}", file=sys.stderr)
+    args.paths = paths
+    args.config = run_configuration(args, root)
     c_file = Path(args.build_dir) / "program" / "program.c"
     c_file.parent.mkdir(parents=True, exist_ok=True)
     if not c_file.exists() or c_file.read_text() != res.c_text:
@@ -79,6 +99,24 @@ def cmd_run(args) -> int:
         return runtime.run_command(args, c_file)
     except (runtime.ConfigError, runtime.RuntimeBuildError) as e:
         raise UserError(str(e)) from None
+
+
+def cmd_retain_show(args) -> int:
+    from . import retainfile
+    try:
+        f = retainfile.read(args.file)
+    except retainfile.RetainFileError as e:
+        print(f"plc retain: error: {args.file}: {e}", file=sys.stderr)
+        return 1
+    if f.version == 1:
+        print(f"{args.file}: format version 1 (one block of values without names: the runtime that reads it "
+              f"names them), generation {f.generation}")
+        return 0
+    print(f"{args.file}: format version {f.version}, generation {f.generation}, {len(f.entries)} entries "
+          f"({len(f.kept_aside())} kept aside)")
+    for e in f.entries:
+        print("  " + retainfile.describe(e))
+    return 0
 
 
 def add_compile_opts(p: argparse.ArgumentParser) -> None:
@@ -106,18 +144,29 @@ def parser() -> argparse.ArgumentParser:
     testrunner.add_parser(sub)
     from . import machine
     machine.add_parser(sub)
-    from . import runtime
     p = sub.add_parser("run", help="build and run the soft-PLC (Modbus/TCP, OpenPLC map)", description=
                        "Compile the ST program (default: the project's st_src/) and run it as a soft-PLC serving "
                        "Modbus/TCP with OpenPLC's address map. Ctrl-C stops it: outputs go safe, RETAIN data "
-                       "is saved.")
+                       "is saved. The run configuration is --config, else the project's configs/runtime.toml "
+                       "when the sources belong to the project; the one used is printed.")
     p.add_argument("paths", nargs="*", metavar="PATH", help="ST files or directories (default: st_src/)")
     runtime.add_run_arguments(p)
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser("retain", help="read a retained-data file: plc retain show FILE", description=
+                       "Read a retained-data file of the runtime. Exit 0, or 1 when the file is damaged.")
+    rsub = p.add_subparsers(dest="retain_cmd", metavar="show")
+    rsub.required = True
+    q = rsub.add_parser("show", help="list every saved value with its name, type and location",
+                        description="Check a retained-data file (CRC, entry table) and list every saved value: "
+                                    "name, type, location, value; values kept aside (saved by an earlier program "
+                                    "version, not used by the present one) are marked.")
+    q.add_argument("file", type=Path, metavar="FILE", help="the retain file (e.g. var/plc.retain)")
+    q.set_defaults(func=cmd_retain_show)
     sub.add_parser("seq", help="check and compile tool-change sequences (plc seq --help)", add_help=False)
     sub.add_parser("map", help="check the register map and generate from it (plc map --help)", add_help=False)
     sub.add_parser("host", help="CNC host client: plc host \"T5 M6\" (plc host --help)", add_help=False)
-    sub.add_parser("deploy", help="bundle for OpenPLC: plc deploy openplc --out FILE.st", add_help=False)
+    sub.add_parser("deploy", help="bundle for OpenPLC (plc deploy openplc), install and upgrade our soft-PLC as a "
+                   "systemd service (plc deploy service|upgrade|rollback)", add_help=False)
     return ap
 
 

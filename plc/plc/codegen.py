@@ -1088,7 +1088,8 @@ class Gen:
                         continue
                     walk(f"{prefix}.{v.name}", f"{cexpr}.{cid(v.name)}", v.type, retain or v.retain, v.constant)
                 return
-            out.append((prefix, T.abi_type(t), int(retain), int(constant), f"&{cexpr}", self.ctype(t)))
+            out.append((prefix, T.abi_type(t), int(retain), int(constant), f"&{cexpr}", self.ctype(t),
+                        T.signature(t)))
 
         for g in cfg.globals.values():
             if g.location is not None:
@@ -1100,19 +1101,21 @@ class Gen:
         return out
 
     def located_entries(self):
+        """(location, path, type, c-pointer, retain) of every located variable."""
         cfg = self.cfg
         out = []
         if cfg is None:
             return out
         for g in cfg.globals.values():
             if g.location is not None:
-                out.append((g.location, f"{cfg.name}.{g.name}", g.type, f"(void **)&G_{cid(g.name)}"))
+                out.append((g.location, f"{cfg.name}.{g.name}", g.type, f"(void **)&G_{cid(g.name)}",
+                            int(g.retain)))
         for inst in cfg.instances:
             for v in inst.type.scope.vars.values():
                 if v.location is not None:
                     res = f"{inst.resource}." if inst.resource else ""
                     out.append((v.location, f"{cfg.name}.{res}{inst.name}.{v.name}", v.type,
-                                f"(void **)&{inst.cname}.{cid(v.name)}"))
+                                f"(void **)&{inst.cname}.{cid(v.name)}", int(v.retain)))
         return out
 
     def tables(self) -> None:
@@ -1127,19 +1130,20 @@ class Gen:
         located = self.located_entries()
         if located:
             w("static const plc_located_t plc_located_table[] = {")
-            for loc, path, t, ptr in located:
+            for loc, path, t, ptr, retain in located:
                 index = loc.parts[0]
                 bit = loc.parts[1] if loc.size == "X" and len(loc.parts) > 1 else 0
                 w(f"    {{{c_string(loc.text)}, {c_string(path)}, '{loc.area}', '{loc.size}', {T.abi_type(t)}, "
-                  f"{index}u, {bit}u, {ptr}}},")
+                  f"{index}u, {bit}u, {ptr}, {retain}u}},")
             w("};")
         entries = self.var_entries()
         if entries:
             w("static const plc_var_t plc_var_table[] = {")
-            for path, abi, retain, const, addr, ct in entries:
-                w(f"    {{{c_string(path)}, {abi}, {retain}, {const}, (void *){addr}, (uint32_t)sizeof({ct})}},")
+            for path, abi, retain, const, addr, ct, sig in entries:
+                w(f"    {{{c_string(path)}, {abi}, {retain}, {const}, (void *){addr}, (uint32_t)sizeof({ct}), "
+                  f"{c_string(sig)}}},")
             w("};")
-        h = zlib.crc32("\n".join(f"{p}:{a}:{ct}" for p, a, r, c, _ad, ct in entries if r).encode())
+        h = zlib.crc32("\n".join(f"{p}:{a}:{ct}" for p, a, r, c, _ad, ct, _s in entries if r).encode())
         w("const plc_program_t plc_program = {")
         w("    PLC_ABI_VERSION,")
         w(f"    {c_string(cfg.decl.text) if cfg else 'NULL'},")

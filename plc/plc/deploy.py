@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import ast as A
+from . import service
 from .diagnostics import Diagnostics
 from .driver import collect_files, compile_sources, display_name, read_source
 from .parser import parse
@@ -181,8 +182,11 @@ def _map_drift(root: Path) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="plc deploy", description="Bundle the application for another runtime.")
-    sub = p.add_subparsers(dest="target", metavar="{openplc}")
+    p = argparse.ArgumentParser(prog="plc deploy", description="Bundle the application for another runtime "
+                                "(openplc), or install and upgrade our soft-PLC as a systemd service (service, "
+                                "upgrade, rollback). Exit status: 0 done, 1 findings (errors in the program, "
+                                "an upgrade refused), 2 usage or environment problems.")
+    sub = p.add_subparsers(dest="target", metavar="{openplc,service,upgrade,rollback}")
     sub.required = True
     o = sub.add_parser("openplc", help="one self-contained ST file for an OpenPLC runtime upload",
                        description="Write st_src/ (library, generated tables, application, CONFIGURATION) as one "
@@ -191,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--src", type=Path, action="append", metavar="DIR",
                    help="ST source directory (default: st_src/ of the project; repeatable)")
     o.add_argument("-q", "--quiet", action="store_true", help="print errors only")
+    service.add_parsers(sub)
     return p
 
 
@@ -201,6 +206,12 @@ def main(argv: list[str]) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    if args.target != "openplc":
+        try:
+            return args.func(args)
+        except service.DeployError as exc:
+            print(f"plc deploy: error: {exc}", file=sys.stderr)
+            return EXIT_FINDINGS if "does not compile" in str(exc) else EXIT_USAGE
     root = project_root()
     src = args.src or ([root / "st_src"] if root else [])
     if not src or not all(d.is_dir() for d in src):

@@ -255,3 +255,20 @@ def abi_type(t: Type) -> str:
     if isinstance(b, EnumType):
         return "PLC_T_ENUM"
     return "PLC_T_OTHER"
+
+
+def signature(t: Type) -> str:
+    """The full text of a type as retained data record it: two types with the same signature store their
+    values alike.  Subranges count as their base type (same storage; the bounds only check assignments)."""
+    if isinstance(t, StringType):
+        return t.name
+    b = resolve_base(t)
+    if isinstance(b, EnumType):
+        return f"{b.name.upper()}({','.join(v.upper() for v in b.values)})"
+    if isinstance(b, ArrayType):
+        d = ",".join(f"{lo}..{hi}" for lo, hi in b.dims)
+        return f"ARRAY[{d}] OF {signature(b.elem)}"
+    if isinstance(b, StructType):
+        members = ";".join(f"{m.name.upper()}:{signature(m.type)}" for m in b.members.values())
+        return f"{b.name.upper()}{{{members}}}"
+    return str(getattr(b, "name", "?")).upper()

@@ -9,6 +9,11 @@
  * clients, PLC state) redrawn four times a second below the log lines.
  * Otherwise the same status is written as a plain log line every
  * --status-interval seconds.
+ *
+ * When stderr is the systemd journal ($JOURNAL_STREAM names it), every line
+ * starts with its syslog priority instead of a time stamp ("<3>" error,
+ * "<4>" warning, "<6>" info): journald files it at that priority and adds
+ * its own time.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -17,6 +22,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -34,6 +40,7 @@ struct log_sink {
     unsigned dropped;
     bool stopping;
     bool tty;                     /* live status line on a terminal */
+    bool journal;                 /* stderr is the systemd journal: priority prefixes */
     double status_period_s;       /* 0: no status */
     bool status_shown;
     pthread_t thread;
@@ -90,12 +97,35 @@ static void compose_status(log_sink_t *ls, char *out, size_t n)
                  scans, scan_last, scan_p99, scan_max, wake_p99, wake_max, overruns, clients, requests);
 }
 
-static void format_line(char *out, size_t n, log_level_t level, const char *fmt, va_list ap)
+/* $JOURNAL_STREAM is "device:inode" of the journal's stream, when stderr may be it. */
+static bool stderr_is_journal(void)
+{
+    const char *js = getenv("JOURNAL_STREAM");
+    unsigned long long dev, ino;
+    struct stat st;
+
+    if (!js || sscanf(js, "%llu:%llu", &dev, &ino) != 2 || fstat(STDERR_FILENO, &st) != 0)
+        return false;
+    return (unsigned long long)st.st_dev == dev && (unsigned long long)st.st_ino == ino;
+}
+
+/* syslog priorities: LOG_ERR 3, LOG_WARNING 4, LOG_INFO 6 */
+static int journal_priority(log_level_t level)
+{
+    return level == LOG_ERROR ? 3 : level == LOG_WARN ? 4 : 6;
+}
+
+static void format_line(char *out, size_t n, bool journal, log_level_t level, const char *fmt, va_list ap)
 {
     struct timespec ts;
     struct tm tm;
     const char *tag = level == LOG_ERROR ? "error: " : level == LOG_WARN ? "warning: " : "";
 
+    if (journal) {
+        int k = snprintf(out, n, "<%d>%s", journal_priority(level), tag);
+        vsnprintf(out + k, n - (size_t)k, fmt, ap);
+        return;
+    }
     clock_gettime(CLOCK_REALTIME, &ts);
     localtime_r(&ts.tv_sec, &tm);
     int k = snprintf(out, n, "%02d:%02d:%02d.%03ld " RT_NAME ": %s", tm.tm_hour, tm.tm_min, tm.tm_sec,
@@ -150,8 +180,8 @@ static void *log_thread(void *arg)
         }
         if (dropped) {
             char msg[96];
-            int k = snprintf(msg, sizeof msg, RT_NAME ": warning: %u log lines dropped (log output too slow)\n",
-                             dropped);
+            int k = snprintf(msg, sizeof msg, "%s" RT_NAME ": warning: %u log lines dropped (log output too "
+                             "slow)\n", ls->journal ? "<4>" : "", dropped);
             write_fd(msg, (size_t)k);
         }
         if (stopping)
@@ -177,9 +207,13 @@ static void *log_thread(void *arg)
                 char line[LOG_LINE + 64];
                 struct timespec ts;
                 struct tm tm;
+                int k;
                 clock_gettime(CLOCK_REALTIME, &ts);
                 localtime_r(&ts.tv_sec, &tm);
-                int k = snprintf(line, sizeof line, "%02d:%02d:%02d.%03ld " RT_NAME ": status %s\n", tm.tm_hour,
+                if (ls->journal)
+                    k = snprintf(line, sizeof line, "<6>status %s\n", status);
+                else
+                    k = snprintf(line, sizeof line, "%02d:%02d:%02d.%03ld " RT_NAME ": status %s\n", tm.tm_hour,
                                  tm.tm_min, tm.tm_sec, ts.tv_nsec / 1000000, status);
                 write_fd(line, k > 0 && (size_t)k < sizeof line ? (size_t)k : strlen(line));
             }
@@ -209,6 +243,7 @@ int log_open(runtime_t *rt, log_sink_t **out)
     pthread_condattr_destroy(&ca);
 
     bool on_tty = isatty(STDERR_FILENO);
+    ls->journal = stderr_is_journal();
     switch (rt->opt.status) {
     case STATUS_AUTO: ls->tty = on_tty; break;
     case STATUS_TTY: ls->tty = true; break;
@@ -248,7 +283,7 @@ void log_msg(log_sink_t *ls, log_level_t level, const char *fmt, ...)
     va_start(ap, fmt);
     if (!ls) {           /* before the log thread exists */
         char line[LOG_LINE];
-        format_line(line, sizeof line, level, fmt, ap);
+        format_line(line, sizeof line, stderr_is_journal(), level, fmt, ap);
         va_end(ap);
         write_fd(line, strlen(line));
         write_fd("\n", 1);
@@ -258,7 +293,7 @@ void log_msg(log_sink_t *ls, log_level_t level, const char *fmt, ...)
     if (ls->head - ls->tail >= LOG_SLOTS) {
         ls->dropped++;
     } else {
-        format_line(ls->ring[ls->head % LOG_SLOTS], LOG_LINE, level, fmt, ap);
+        format_line(ls->ring[ls->head % LOG_SLOTS], LOG_LINE, ls->journal, level, fmt, ap);
         ls->head++;
         pthread_cond_signal(&ls->cv);
     }

@@ -60,7 +60,13 @@ static void usage(FILE *f)
 "  --status-interval S      seconds between status log lines when not on a terminal (default 10)\n"
 "  --duration S             stop after S seconds (benchmarks; default: run until SIGINT/SIGTERM)\n"
 "  --watchdog MS            longest run() call before outputs are forced safe (default %d, 0 = off)\n"
+"  --describe-retain        print the retained entries (path, type, location, bytes) and the\n"
+"                           located variables, one per line, tab-separated, and exit\n"
 "  --version, --help\n"
+"\n"
+"Under systemd (Type=notify) the runtime sends READY=1 after its first scan and\n"
+"WATCHDOG=1 while its scans run ($NOTIFY_SOCKET, $WATCHDOG_USEC); log lines carry\n"
+"journald priorities when stderr is the journal ($JOURNAL_STREAM).\n"
 "\n"
 "Diagnostics are in input registers %u-%u (see runtime.h).  Exit status: 0 after\n"
 "SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error.\n",
@@ -146,7 +152,7 @@ static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char
 
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
        OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
-       OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_VERSION, OPT_HELP };
+       OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP };
 
 static int parse_options(int argc, char **argv, rt_options_t *o)
 {
@@ -169,6 +175,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "status-interval", required_argument, NULL, OPT_STATUS_INTERVAL },
         { "duration", required_argument, NULL, OPT_DURATION },
         { "watchdog", required_argument, NULL, OPT_WATCHDOG },
+        { "describe-retain", no_argument, NULL, OPT_DESCRIBE_RETAIN },
         { "version", no_argument, NULL, OPT_VERSION },
         { "help", no_argument, NULL, OPT_HELP },
         { NULL, 0, NULL, 0 },
@@ -282,6 +289,9 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
                 return usage_error("--watchdog: '%s' is not a number of milliseconds", optarg);
             o->watchdog_ms = (int)v;
             break;
+        case OPT_DESCRIBE_RETAIN:
+            o->describe_retain = true;
+            break;
         case OPT_VERSION:
             printf(RT_NAME " " RT_VERSION " (ABI %u)\n", PLC_ABI_VERSION);
             exit(0);
@@ -337,6 +347,14 @@ int main(int argc, char **argv)
     if (rc != 0)
         return rc;
     rt.prog = &plc_program;
+    if (rt.opt.describe_retain) {
+        if (rt.prog->abi_version != PLC_ABI_VERSION) {
+            fprintf(stderr, RT_NAME ": error: program built for ABI %u, this runtime speaks ABI %u\n",
+                    rt.prog->abi_version, PLC_ABI_VERSION);
+            return 1;
+        }
+        return retain_describe(&rt, stdout) == 0 && fflush(stdout) == 0 ? 0 : 1;
+    }
     pthread_mutex_init(&rt.lock, NULL);
     pthread_mutex_init(&rt.io_lock, NULL);
     rt.scan_thread = pthread_self();
@@ -355,6 +373,8 @@ int main(int argc, char **argv)
     log_msg(rt.log, LOG_INFO, RT_NAME " " RT_VERSION ", program %s, I/O layer %s (%s)",
             rt.prog->config_name ? rt.prog->config_name : "?", rt.opt.io->name, rt.opt.io->description);
     if (check_program(&rt) != 0)
+        goto out_log;
+    if (notify_open(&rt, &rt.notify) != 0)
         goto out_log;
 
     rt.prog->init();
@@ -396,6 +416,7 @@ out_retain:
 out_io:
     rt.opt.io->close(rt.io_state);
 out_log:
+    notify_close(rt.notify);
     if (status == 0)
         log_msg(rt.log, LOG_INFO, "stopped");
     log_close(rt.log);

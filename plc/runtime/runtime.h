@@ -11,6 +11,7 @@
  *   retain.c         RETAIN variables saved atomically and restored at start
  *   io_sim.c/io_none.c  the physical side of the image, behind io_layer_t
  *   watchdog.c       forces outputs safe when run() never returns
+ *   notify.c         tells a service manager (systemd) ready, alive, stopping
  *   log.c            log lines and the live status line
  *   main.c           options, start-up and orderly shutdown
  *
@@ -25,6 +26,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 #include <stddef.h>
+#include <stdio.h>
 
 #include "plc_abi.h"
 
@@ -90,6 +92,7 @@ enum diag_offset {
 #define DIAG_FLAG_RETAIN_REJECTED 0x0004u  /* retain file found but rejected */
 #define DIAG_FLAG_RETAIN_ERROR    0x0008u  /* the last retain save failed */
 #define DIAG_FLAG_SIM_IO          0x0010u  /* io layer is "sim" */
+#define DIAG_FLAG_RETAIN_KEPT_ASIDE 0x0020u /* saved values this program does not use were kept aside */
 
 typedef enum plc_state {
     PLC_STATE_STARTING = 0,
@@ -204,6 +207,7 @@ typedef struct rt_options {
     double status_interval_s;      /* log-line status period when not on a TTY */
     double duration_s;             /* stop after this long (0: run until signalled) */
     int watchdog_ms;               /* longest run() call allowed (0: no watchdog) */
+    bool describe_retain;          /* print the retained entries and exit */
 } rt_options_t;
 
 /* ------------------------------------------------------------ statistics */
@@ -240,6 +244,7 @@ typedef struct log_sink log_sink_t;
 typedef struct modbus_server modbus_server_t;
 typedef struct retain_store retain_store_t;
 typedef struct watchdog watchdog_t;
+typedef struct notifier notifier_t;
 
 typedef struct runtime {
     rt_options_t opt;
@@ -257,6 +262,7 @@ typedef struct runtime {
     modbus_server_t *server;
     retain_store_t *retain;
     watchdog_t *watchdog;
+    notifier_t *notify;            /* NULL when no service manager listens */
     pthread_t scan_thread;
     _Atomic uint64_t run_started_ns;   /* when the current run() call began, 0 outside run() */
     atomic_bool watchdog_tripped;
@@ -305,10 +311,18 @@ void retain_close(runtime_t *rt);                       /* final save, joins the
 uint32_t retain_saves(const retain_store_t *rs);
 bool retain_last_failed(const retain_store_t *rs);
 uint32_t crc32_update(uint32_t crc, const void *data, size_t len);
+int retain_describe(runtime_t *rt, FILE *out);          /* the retained entries and located variables */
+const char *plc_type_name(unsigned type);               /* "INT" for PLC_T_INT */
 
 /* watchdog.c */
 int watchdog_start(runtime_t *rt, watchdog_t **out);
 void watchdog_stop(watchdog_t *wd);
+
+/* notify.c (every function accepts NULL: nobody to tell) */
+int notify_open(runtime_t *rt, notifier_t **out);
+void notify_send(notifier_t *n, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+void notify_after_scan(notifier_t *n, const runtime_t *rt, uint64_t now);   /* scan thread */
+void notify_close(notifier_t *n);
 
 /* log.c */
 typedef enum log_level { LOG_INFO, LOG_WARN, LOG_ERROR } log_level_t;

@@ -318,6 +318,9 @@ int scan_run(runtime_t *rt)
             retain_after_scan(rt, woke);
 
         const uint64_t done = now_ns();
+        if (s->scans == 1)      /* upgrades measure the switch-over up to this line (monotonic clock) */
+            log_msg(rt->log, LOG_INFO, "first scan done at monotonic %.6f s", done / 1e9);
+        notify_after_scan(rt->notify, rt, done);
         hist_add(&s->scan, done - woke);
         deadline += period;
         if (done > deadline) {
@@ -338,6 +341,7 @@ int scan_run(runtime_t *rt)
     /* Program stopped, outputs safe, in the image and at the I/O.  Host writes
      * acknowledged since the last scan still reach memory and retained data
      * (unless the program had faulted: then the last good scan's values stay). */
+    notify_send(rt->notify, "STOPPING=1\nSTATUS=stopping: outputs going safe, saving retained data");
     const bool was_running = rt->state == PLC_STATE_RUNNING;
     rt->state = PLC_STATE_STOPPING;
     pthread_mutex_lock(&rt->lock);
@@ -349,7 +353,8 @@ int scan_run(runtime_t *rt)
     pthread_mutex_lock(&rt->io_lock);
     rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, no_words);
     pthread_mutex_unlock(&rt->io_lock);
-    log_msg(rt->log, LOG_INFO, "outputs safe (all coils cleared, I/O outputs at zero)");
+    log_msg(rt->log, LOG_INFO, "outputs safe (all coils cleared, I/O outputs at zero) at monotonic %.6f s",
+            now_ns() / 1e9);
     if (was_running)
         retain_capture(rt);
     log_summary(rt);

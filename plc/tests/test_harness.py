@@ -21,7 +21,7 @@ static int32_t counter;
 static volatile int32_t big = INT_MAX;
 static plc_fault_t fault;
 static const plc_task_t tasks[] = {{"T", 4000000u, 1u, 0}};
-static const plc_var_t vars[] = {{"CONFIG0.COUNTER", PLC_T_DINT, 0, 0, &counter, 4}};
+static const plc_var_t vars[] = {{"CONFIG0.COUNTER", PLC_T_DINT, 0, 0, &counter, 4, "DINT"}};
 static void init(void) { counter = 0; }
 static int run(uint64_t tick) { (void)tick; BODY; return 0; }
 const plc_program_t plc_program = {PLC_ABI_VERSION, "CONFIG0", 4000000u, tasks, 1u, NULL, 0u, vars, 1u, 0u,

@@ -38,7 +38,7 @@ def test_build_is_cached_by_content(tmp_path):
     assert second != first and second.is_file()
     assert second.name.endswith("-asan") == h.SANITIZE
     result = subprocess.run([str(second), "--version"], capture_output=True, text=True, timeout=30)
-    assert result.returncode == 0 and "ABI 1" in result.stdout
+    assert result.returncode == 0 and "ABI 2" in result.stdout
 
 
 def test_a_changed_included_header_rebuilds(tmp_path):

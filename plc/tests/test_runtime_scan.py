@@ -243,4 +243,4 @@ def test_a_located_variable_of_the_wrong_size_is_refused():
 
 def test_a_program_for_another_abi_is_refused():
     rc, err = run_to_end(h.runtime_binary(FIXTURE_ABI_VERSION=99), "--no-rt", "--port", "0")
-    assert rc == 1 and "program built for ABI 99, this runtime speaks ABI 1" in err, err
+    assert rc == 1 and "program built for ABI 99, this runtime speaks ABI 2" in err, err

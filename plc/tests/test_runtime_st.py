@@ -79,7 +79,7 @@ def test_compiled_st_runs_on_the_openplc_map_and_keeps_retain(binary, tmp_path):
         h.wait_until(lambda: c.read_holding(3) == [50], 2, "quotient := 100 / 2")
         h.wait_until(lambda: c.read_holding(1024 + 21) == [1234], 2, "keepOut := keep")
     with h.Runtime(binary, "--no-rt", "--retain", str(f)) as rt, h.Client(rt.port) as c:
-        rt.wait_for(r"retain: restored 2 bytes")
+        rt.wait_for(r"retain: restored 1 of 1 values")
         h.wait_until(lambda: c.read_holding(1024 + 21) == [1234], 2, "keep restored after the restart")
 
 

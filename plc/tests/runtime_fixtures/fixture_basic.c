@@ -105,7 +105,7 @@ static const plc_task_t tasks[] = {
 };
 
 #define LOC(addr, var, area, size, type, index, bit, ptr) \
-    { addr, "CONFIG0.RES0.MAIN." var, area, size, type, index, bit, &ptr }
+    { addr, "CONFIG0.RES0.MAIN." var, area, size, type, index, bit, &ptr, 0 }
 
 static const plc_located_t located[] = {
     LOC("%IX50.0", "HOSTBIT", 'I', 'X', PLC_T_BOOL, 50, 0, p_host_bit),
@@ -131,11 +131,11 @@ static const plc_located_t located[] = {
 };
 
 static const plc_var_t vars[] = {
-    { "CONFIG0.RES0.MAIN.KEEP", PLC_T_INT, 1, 0, &keep, sizeof keep },
-    { "CONFIG0.RES0.MAIN.SCANS", PLC_T_UDINT, 1, 0, &scans, sizeof scans },
-    { "CONFIG0.RES0.MAIN.SLOW", PLC_T_UINT, 0, 0, &slow, sizeof slow },
+    { "CONFIG0.RES0.MAIN.KEEP", PLC_T_INT, 1, 0, &keep, sizeof keep, "INT" },
+    { "CONFIG0.RES0.MAIN.SCANS", PLC_T_UDINT, 1, 0, &scans, sizeof scans, "UDINT" },
+    { "CONFIG0.RES0.MAIN.SLOW", PLC_T_UINT, 0, 0, &slow, sizeof slow, "UINT" },
 #ifdef FIXTURE_EXTRA_RETAIN
-    { "CONFIG0.RES0.MAIN.EXTRA", PLC_T_DINT, 1, 0, &extra, sizeof extra },
+    { "CONFIG0.RES0.MAIN.EXTRA", PLC_T_DINT, 1, 0, &extra, sizeof extra, "DINT" },
 #endif
 };
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import random
 import re
 import signal
 import socket
@@ -82,11 +83,11 @@ def wait_until(predicate: Callable[[], object], timeout: float, what: str, step:
 class Runtime:
     """A running runtime process; its stderr is collected line by line."""
 
-    def __init__(self, binary: Path, *args: str, cwd: Path | None = None, raw: bool = False):
+    def __init__(self, binary: Path, *args: str, cwd: Path | None = None, raw: bool = False,
+                 env: dict[str, str] | None = None):
         """Start `binary` with test defaults (any free port, no status lines) before `args`,
-        or with exactly `args` when raw."""
-        env = dict(os.environ)
-        env.update(SANITIZER_ENV)
+        or with exactly `args` when raw; `env` is added to the environment."""
+        env = {**os.environ, **SANITIZER_ENV, **(env or {})}
         defaults = [] if raw else ["--port", "0", "--status", "log", "--status-interval", "3600"]
         self.argv = [str(binary), *defaults, *args]
         self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -330,3 +331,77 @@ def md(words: list[int]) -> int:
 def md_words(value: int) -> list[int]:
     v = value & 0xFFFFFFFF
     return [v >> 16, v & 0xFFFF]
+
+
+# ---------------------------------------------------------------------- kill -9 trials
+
+def kill_trials(binary: Path, directory: Path, trials: int, seed: int = 9,
+                deadline_s: float | None = None) -> dict[str, int]:
+    """Run the fixture runtime `trials` times, killing it with SIGKILL at random instants while its writer
+    saves after every scan (--retain-interval 0), and check every retain file left behind.
+
+    Counts: `killed_mid_write` (a .tmp file was left: the kill hit a save in progress), `corrupt` (a file that
+    does not decode, or lacks the fixture's two entries), `lost` (a file older than a save completed before,
+    a keep value other than the last one written, or a restart that did not restore both values),
+    `rejected` (a restart that set the file aside), `applied_checked` (restarts whose applied scans counter
+    was compared with the file).  `binary` must be the fixture built with a 1 ms tick."""
+    from plc import retainfile
+
+    f, tmp = directory / "plc.retain", directory / "plc.retain.tmp"
+    keep_path, scans_path = "CONFIG0.RES0.MAIN.KEEP", "CONFIG0.RES0.MAIN.SCANS"
+    rng = random.Random(seed)
+    out = {"trials": 0, "killed_mid_write": 0, "corrupt": 0, "lost": 0, "rejected": 0, "applied_checked": 0}
+    last_completed, keep = -1, 0
+    started = time.monotonic()
+
+    def decode() -> tuple[int, int] | None:
+        try:
+            active = retainfile.read(f).active()
+            return active[keep_path].number(), active[scans_path].number()
+        except (retainfile.RetainFileError, KeyError):
+            return None
+
+    for trial in range(trials):
+        if deadline_s is not None and time.monotonic() - started > deadline_s * SLOW:
+            raise AssertionError(f"too slow: {trial} of {trials} trials in {deadline_s * SLOW:.0f} s")
+        saved_before = f.exists()
+        rt = Runtime(binary, "--no-rt", "--retain", str(f), "--retain-interval", "0", "--status", "off")
+        try:
+            rt.start()
+            if saved_before and ("retain: restored 2 of 2 values" not in rt.log):
+                out["lost"] += 1
+            out["rejected"] += "rejected" in rt.log
+            if trial % 10 == 5 or (saved_before and trial % 20 == 1):
+                with Client(rt.port) as c:
+                    wait_until(lambda: read_diag(c)["scans"] >= 1, 2, "the first scan")
+                    if saved_before and trial % 20 == 1:      # the runtime applied exactly that file
+                        s1 = read_diag(c)["scans"]
+                        w = c.read_holding(2058, 2)
+                        s2 = read_diag(c)["scans"]
+                        applied = w[0] << 16 | w[1]
+                        out["lost"] += not (last_completed + s1 <= applied <= last_completed + s2)
+                        out["applied_checked"] += 1
+                    if trial % 10 == 5:                       # a new keep value, saved before the kill
+                        keep = rng.randint(1, 30000)
+                        c.write_register(1024 + 20, keep)
+                        wait_until(lambda: (decode() or (0, 0))[0] == keep, 3, "the new keep value saved")
+            time.sleep(rng.uniform(0.0, 0.03))
+            seen = decode()                                   # a completed save, whatever happens next
+            time.sleep(rng.uniform(0.0, 0.004))
+        finally:
+            rt.proc.send_signal(signal.SIGKILL)
+            rt.kill()
+        out["trials"] += 1
+        out["killed_mid_write"] += tmp.exists()
+        if not f.exists():
+            out["lost"] += saved_before
+            continue                                          # killed before the very first save
+        after = decode()
+        if after is None:
+            out["corrupt"] += 1
+            continue
+        seen_scans = seen[1] if seen else -1
+        if not (after[1] >= seen_scans >= last_completed) or (keep and after[0] != keep):
+            out["lost"] += 1
+        last_completed = after[1]
+    return out
