@@ -1,0 +1,100 @@
+"""PLCopen TC6 XML (v2.01) as a source format: the compiler's XML front end.
+
+The interface to the rest of the toolchain is small on purpose:
+
+    looks_like_plcopen(path)            is this file a PLCopen project?
+    translate(name, data, diags)        -> Translation: the project as ST text with a line map, or None
+    Translation.remap(diags)            point the diagnostics of the ST text back into the XML
+
+Types, POUs (ST bodies as written, LD and FBD bodies translated, docs/ladder.md), global variables
+and the configuration become ST; the compiler proper never sees XML.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..diagnostics import Diagnostics, Pos
+from .datatypes import TypeError_
+from .project import Origin, ProjectError, Unit, read_project
+from .xmlfile import XmlError, looks_like_plcopen as _looks, parse_bytes
+
+__all__ = ["looks_like_plcopen", "translate", "Translation", "Unit", "st_name"]
+
+SNIFF_BYTES = 4096
+
+
+def looks_like_plcopen(path: Path) -> bool:
+    """True for a .xml file whose first bytes name the PLCopen TC6 0201 namespace."""
+    if path.suffix.lower() != ".xml":
+        return False
+    try:
+        with open(path, "rb") as f:
+            return _looks(f.read(SNIFF_BYTES))
+    except OSError:
+        return False
+
+
+def st_name(xml_name: str) -> str:
+    """The name the generated ST text goes by inside the compiler (never shown for mapped lines)."""
+    return f"{xml_name}#st"
+
+
+@dataclass
+class Translation:
+    xml_name: str
+    units: list[Unit]
+
+    @property
+    def st_name(self) -> str:
+        return st_name(self.xml_name)
+
+    @property
+    def text(self) -> str:
+        return "\n".join(line for u in self.units for line, _o in u.lines) + "\n"
+
+    def origins(self) -> list[Origin]:
+        return [o for u in self.units for _l, o in u.lines]
+
+    def origin(self, st_line: int) -> Origin | None:
+        table = self.origins()
+        return table[st_line - 1] if 1 <= st_line <= len(table) else None
+
+    def where(self, pos: Pos) -> tuple[Pos, str]:
+        """XML position and message prefix for a position in the generated ST text."""
+        o = self.origin(pos.line)
+        if o is None:
+            return Pos(self.xml_name, 0, 0), ""
+        col = pos.col + o.col_shift if o.exact else 1
+        return Pos(self.xml_name, o.line, col), prefix(o.pou, o.local_id)
+
+    def remap(self, diags: Diagnostics) -> None:
+        for d in diags.items:
+            if d.pos.file == self.st_name:
+                d.pos, pre = self.where(d.pos)
+                d.message = pre + d.message
+
+
+def prefix(pou: str, local_id: int | None) -> str:
+    if not pou:
+        return ""
+    if local_id is None:
+        return f"in {pou}: "
+    return f"in {pou}, element localId {local_id}: "
+
+
+def translate(name: str, data: bytes, diags: Diagnostics) -> Translation | None:
+    """The project in `data` as ST units; None (with an error in diags) when it cannot be read."""
+    try:
+        root = parse_bytes(data)
+        units = read_project(root, data)
+    except XmlError as e:
+        diags.error(Pos(name, e.line, e.col or 1), str(e))
+        return None
+    except ProjectError as e:
+        diags.error(Pos(name, e.line, 1), prefix(e.pou, e.local_id) + str(e))
+        return None
+    except TypeError_ as e:
+        diags.error(Pos(name, e.line, 1), str(e))
+        return None
+    return Translation(name, units)

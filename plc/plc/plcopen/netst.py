@@ -1,0 +1,652 @@
+"""LD and FBD bodies as Structured Text (docs/ladder.md states the rules this module implements).
+
+Power flow is evaluated once per network: every element's output is computed one time, and a value
+used more than once (a contact feeding coils in series or in parallel, a block output feeding two
+blocks) goes into a temporary at its first use, so a coil that resets the variable of a contact does
+not change what the coils after it receive (OpenPLC Editor #836).
+
+Order of the networks: by `executionOrderId` when the editor wrote one (> 0) on every network;
+otherwise a network that writes a variable runs before the networks that read it (data-flow order),
+with top-to-bottom position only as the tie-break and to break cycles.  Labels split a body into
+parts kept in their drawn order; forward jumps skip the networks up to their label.  Inside a network
+the actions (coils, blocks, output variables, jump, return) run in data-flow order (execution order
+when every action has one), top-to-bottom as the tie-break; a block output read before its block runs
+(feedback) gives the value of the previous scan.
+"""
+from __future__ import annotations
+
+import heapq
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+
+from .graph import RAILS, Element, GraphError, check_refs, networks, read_elements
+
+ATOM, NOT_P, AND_P, OR_P, LOW = 10, 8, 5, 3, 0
+IDENT = re.compile(r"[A-Za-z_]\w*")
+SIMPLE = re.compile(r"^(?:[A-Za-z_][\w]*(?:\.[A-Za-z_]\w*|\[[^\]]*\])*|%[IQM][XBWDL]?[\d.]+|[\w#.+\-:']+)$")
+LITERAL = re.compile(r"^(?:TRUE|FALSE|[+-]?\d[\d_]*(?:\.\d+)?(?:[eE][+-]?\d+)?|[A-Za-z_]+#.+|'.*')$", re.I)
+CONVERSION = re.compile(r"^(\w+)_TO_(\w+)$", re.I)
+# result type rule by standard-function kind (plc/plc/stdfuncs.py): a type, or the pin whose type it takes
+STD_RESULT = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "STRING", "mid": "STRING",
+              "concat": "STRING", "insert": "STRING", "delete": "STRING", "replace": "STRING", "trunc": "DINT",
+              "num1": "IN", "real1": "IN", "arith": "IN1", "expt": "IN1", "move": "IN", "minmax": "IN1",
+              "limit": "IN", "sel": "IN0", "mux": "IN0", "shift": "IN", "logic": "IN1", "not": "IN"}
+
+
+@dataclass
+class Ex:
+    """An ST expression and its precedence (ATOM binds tightest)."""
+    text: str
+    prec: int = ATOM
+    stable: bool = False     # a constant, a temporary or an FB output: reading it twice reads the same value
+
+    def at(self, prec: int) -> str:
+        return self.text if self.prec >= prec else f"({self.text})"
+
+
+TRUE = Ex("TRUE", ATOM, True)
+FALSE = Ex("FALSE", ATOM, True)
+
+
+def and_(a: Ex, b: Ex) -> Ex:
+    if a.text == "TRUE":
+        return b
+    if b.text == "TRUE":
+        return a
+    return Ex(f"{a.at(AND_P)} AND {b.at(AND_P + 1)}", AND_P)
+
+
+def or_(items: list[Ex]) -> Ex:
+    if any(i.text == "TRUE" for i in items):
+        return TRUE
+    if len(items) == 1:
+        return items[0]
+    return Ex(" OR ".join(i.at(OR_P + 1) for i in items), OR_P)
+
+
+def not_(a: Ex) -> Ex:
+    if a.text == "TRUE":
+        return FALSE
+    if a.text == "FALSE":
+        return TRUE
+    return Ex(f"NOT {a.at(NOT_P)}", NOT_P)
+
+
+@dataclass
+class Sig:
+    """What the translation needs to know about a callable: kind, result type and pin types."""
+    kind: str                                        # FUNCTION | FUNCTION_BLOCK | STD (standard function)
+    ret: str | None = None
+    inputs: dict[str, str] = field(default_factory=dict)
+    outputs: dict[str, str] = field(default_factory=dict)
+    std_kind: str = ""
+
+
+@dataclass
+class Context:
+    """The POU being translated: its kind, the types of the names it sees, the callables it can use."""
+    pou: str
+    pou_kind: str
+    var_types: dict[str, str]                        # upper-case name -> ST type text
+    sigs: dict[str, Sig]                             # upper-case type name -> signature
+    taken: set[str]                                  # upper-case names already declared
+
+
+@dataclass
+class Line:
+    text: str
+    local_id: int | None
+
+
+@dataclass
+class BodyST:
+    lines: list[Line]
+    decls: list[tuple[str, str, str]]                # (name, type, comment) of generated variables
+    networks: int
+
+
+def expr_of(text: str) -> Ex:
+    text = text.strip()
+    return Ex(text, ATOM) if SIMPLE.match(text) else Ex(text, LOW)
+
+
+class Translator:
+    def __init__(self, elems: list[Element], ctx: Context, language: str):
+        self.ctx = ctx
+        self.language = language
+        self.elems = elems
+        self.by_id = {e.id: e for e in elems}
+        self.decls: list[tuple[str, str, str]] = []
+        self.names: dict[tuple, str] = {}
+        self.connectors = {e.text.upper(): e for e in elems if e.kind == "connector"}
+
+    # ------------------------------------------------------------------ naming --
+    def fresh(self, base: str, type_text: str, comment: str, key: tuple) -> str:
+        if key in self.names:
+            return self.names[key]
+        name = base
+        n = 2
+        while name.upper() in self.ctx.taken:
+            name = f"{base}x{n}"
+            n += 1
+        self.ctx.taken.add(name.upper())
+        self.names[key] = name
+        self.decls.append((name, type_text, comment))
+        return name
+
+    # --------------------------------------------------------------- value keys --
+    def key_out(self, eid: int, pin: str):
+        e = self.by_id[eid]
+        if e.kind == "coil":
+            return self.key_in(eid, "")
+        if e.kind == "continuation":
+            conn = self.connectors.get(e.text.upper())
+            if conn is None:
+                raise GraphError(f"continuation '{e.text}' has no connector of that name", e.line, e.id)
+            return self.key_in(conn.id, "")
+        return ("o", eid, pin)
+
+    def key_in(self, eid: int, pin: str):
+        refs = self.by_id[eid].inputs[pin].refs
+        if not refs:
+            return None
+        if len(refs) == 1:
+            return self.key_out(refs[0].source, refs[0].pin)
+        return ("i", eid, pin)
+
+    # ----------------------------------------------------------------- values --
+    def value(self, key, out: list[Line]) -> Ex | None:
+        if key is None:
+            return None
+        if self.counting:
+            self.counts[key] += 1
+            if self.counts[key] == 1:
+                self.compute(key, out)
+            return Ex("?")
+        if key in self.temps:
+            return self.temps[key]
+        if key in self.in_progress:
+            e = self.by_id[key[1]]
+            raise GraphError(f"{e.kind} {e.id} feeds its own input with no block in between (a loop of "
+                             "power flow)", e.line, e.id)
+        self.in_progress.add(key)
+        ex = self.compute(key, out)
+        self.in_progress.discard(key)
+        if self.counts[key] > 1 and not ex.stable:
+            name = self.temp_for(key)
+            out.append(Line(f"{name} := {ex.text};", key[1]))
+            ex = Ex(name, ATOM, True)
+            self.temps[key] = ex
+        return ex
+
+    def temp_for(self, key) -> str:
+        kind, eid, pin = key
+        e = self.by_id[eid]
+        if kind == "i":
+            return self.fresh(f"join{eid}", "BOOL", f"wired OR into {e.kind} {eid}", key)
+        if e.kind == "block":
+            t = self.output_type(e, pin)
+            return self.fresh(f"{(pin or 'out').lower()}{eid}", t, f"output {pin} of {e.type_name} {eid}", key)
+        t = "BOOL" if e.kind in ("contact", "leftPowerRail") or e.negated else self.expr_type(e.text)
+        if t is None:
+            raise GraphError(f"cannot tell the type of '{e.text}' ({e.kind} {eid}), read by several elements",
+                             e.line, eid)
+        return self.fresh(f"flow{eid}", t, f"power flow out of {e.kind} {eid}", key)
+
+    def compute(self, key, out: list[Line]) -> Ex:
+        kind, eid, pin = key
+        e = self.by_id[eid]
+        if kind == "i":
+            vals = [self.value(self.key_out(r.source, r.pin), out) for r in e.inputs[pin].refs]
+            return or_(vals) if not self.counting else Ex("?")
+        if e.kind == "leftPowerRail":
+            return TRUE
+        if e.kind == "contact":
+            flow = self.value(self.key_in(eid, ""), out)
+            if self.counting:
+                return Ex("?")
+            return and_(flow if flow is not None else FALSE, self.contact_term(e, out))
+        if e.kind == "inVariable":
+            ex = expr_of(e.text)
+            if e.edge in ("rising", "falling"):
+                ex = self.edge(e, "", ex, out)
+            return not_(ex) if e.negated else ex
+        if e.kind == "inOutVariable":
+            ex = expr_of(e.text)
+            return not_(ex) if e.negated else ex
+        if e.kind == "block":
+            return self.block_output(e, pin, out)
+        raise GraphError(f"{e.kind} {eid} has no output to read", e.line, eid)
+
+    def contact_term(self, e: Element, out: list[Line]) -> Ex:
+        var = expr_of(e.text)
+        if e.edge in ("rising", "falling"):
+            if e.negated:
+                raise GraphError("a contact is either negated or edge-sensing, not both", e.line, e.id)
+            return self.edge(e, "", var, out)
+        return not_(var) if e.negated else var
+
+    def edge(self, e: Element, pin: str, clk: Ex, out: list[Line]) -> Ex:
+        """Call an R_TRIG/F_TRIG named after the element's localId (and pin) and read its Q."""
+        if self.ctx.pou_kind == "FUNCTION":
+            raise GraphError("an edge needs memory between calls: not possible in a FUNCTION (use a "
+                             "FUNCTION_BLOCK)", e.line, e.id)
+        fb, base = ("R_TRIG", "rise") if e.edge == "rising" else ("F_TRIG", "fall")
+        name = self.fresh(f"{base}{e.id}{pin.capitalize()}", fb, f"{e.edge} edge of {e.kind} {e.id}",
+                          ("edge", e.id, pin))
+        if not self.counting:
+            out.append(Line(f"{name}(CLK := {clk.text});", e.id))
+        return Ex(f"{name}.Q", ATOM, True)
+
+    # ------------------------------------------------------------------ blocks --
+    def sig(self, e: Element) -> Sig:
+        s = self.ctx.sigs.get(e.type_name.upper())
+        if s is None:
+            m = CONVERSION.match(e.type_name)
+            if m:
+                return Sig("STD", ret=m.group(2).upper(), inputs={"IN": ""}, outputs={"OUT": m.group(2).upper()})
+            raise GraphError(f"block type {e.type_name} is not a known function or function block", e.line, e.id)
+        return s
+
+    def is_fb(self, e: Element) -> bool:
+        return self.sig(e).kind == "FUNCTION_BLOCK"
+
+    def fb_instance(self, e: Element) -> str:
+        if not e.instance:
+            raise GraphError(f"function block {e.type_name} ({e.id}) has no instanceName", e.line, e.id)
+        if e.instance.upper() not in self.ctx.var_types:
+            self.ctx.var_types[e.instance.upper()] = e.type_name
+            if e.instance.upper() not in self.ctx.taken:
+                self.ctx.taken.add(e.instance.upper())
+                self.decls.append((e.instance, e.type_name, f"instance of block {e.id}"))
+        return e.instance
+
+    def pure_function(self, e: Element) -> bool:
+        """A function block with one output, no EN/ENO: its call is an expression."""
+        if self.is_fb(e):
+            return False
+        en = e.inputs.get("EN")
+        return ((en is None or not en.refs) and set(e.outputs) <= {"OUT", "ENO"}
+                and not self.eno_used(e) and not e.inouts)
+
+    def eno_used(self, e: Element) -> bool:
+        return self.reads.get((e.id, "ENO"), 0) > 0
+
+    def block_output(self, e: Element, pin: str, out: list[Line]) -> Ex:
+        if self.is_fb(e):
+            inst = self.fb_instance(e)
+            if pin == "ENO":
+                ex = Ex(self.fresh(f"eno{e.id}", "BOOL", f"ENO of block {e.id}", ("o", e.id, "ENO")), ATOM, True)
+            else:
+                ex = Ex(f"{inst}.{e.pin_text.get(pin, pin)}", ATOM, True)
+        elif pin in e.inouts:
+            ex = self.block_args(e, out, inout_only=pin)
+        elif self.pure_function(e):
+            ex = Ex(f"{e.type_name}({self.block_args(e, out).text})", ATOM, False)
+            if self.counting:
+                return Ex("?")
+        else:
+            key = ("o", e.id, pin)
+            self.temp_needed.add(key)
+            if self.counting:
+                return Ex("?")
+            ex = Ex(self.temp_name(e, pin), ATOM, True)
+        return not_(ex) if e.outputs[pin].negated else ex
+
+    def temp_name(self, e: Element, pin: str) -> str:
+        if pin == "ENO":
+            return self.fresh(f"eno{e.id}", "BOOL", f"ENO of block {e.id}", ("o", e.id, "ENO"))
+        return self.temp_for(("o", e.id, pin))
+
+    def output_type(self, e: Element, pin: str) -> str:
+        s = self.sig(e)
+        if pin == "ENO":
+            return "BOOL"
+        if s.kind == "FUNCTION" and pin == "OUT" and s.ret:
+            return s.ret
+        if pin in s.outputs and s.outputs[pin]:
+            return s.outputs[pin]
+        if s.kind == "STD":
+            rule = STD_RESULT.get(s.std_kind, "")
+            if rule and rule.upper() == rule and rule not in e.inputs and rule not in ("IN", "IN0", "IN1"):
+                return rule
+            for cand in [rule, *[p for p in e.inputs if p not in ("EN", "G", "K")]]:
+                if cand in e.inputs:
+                    t = self.input_type(e, cand)
+                    if t:
+                        return t
+        raise GraphError(f"cannot tell the type of output {pin} of {e.type_name} ({e.id}): give one of its "
+                         "inputs a declared variable or a typed literal (INT#5)", e.line, e.id)
+
+    def input_type(self, e: Element, pin: str) -> str | None:
+        refs = e.inputs[pin].refs
+        if len(refs) != 1:
+            return "BOOL" if refs else None
+        src = self.by_id[refs[0].source]
+        if src.kind in ("contact", "leftPowerRail", "coil"):
+            return "BOOL"
+        if src.kind in ("inVariable", "inOutVariable"):
+            return "BOOL" if src.negated else self.expr_type(src.text)
+        if src.kind == "block":
+            try:
+                return self.output_type(src, refs[0].pin)
+            except GraphError:
+                return None
+        return None
+
+    def expr_type(self, text: str) -> str | None:
+        t = text.strip()
+        up = t.upper()
+        if up in self.ctx.var_types:
+            return self.ctx.var_types[up]
+        if up in ("TRUE", "FALSE"):
+            return "BOOL"
+        m = re.match(r"^([A-Za-z_]+)#", t)
+        if m:
+            p = m.group(1).upper()
+            return {"T": "TIME", "TIME": "TIME", "D": "DATE", "DATE": "DATE", "TOD": "TOD", "TIME_OF_DAY": "TOD",
+                    "DT": "DT", "DATE_AND_TIME": "DT"}.get(p, p)
+        if re.match(r"^[+-]?\d[\d_]*$", t):
+            return "INT"
+        if re.match(r"^[+-]?\d[\d_]*\.\d+([eE][+-]?\d+)?$", t):
+            return "REAL"
+        return None
+
+    def block_args(self, e: Element, out: list[Line], inout_only: str | None = None) -> Ex:
+        args = []
+        for pin_name, pin in e.inputs.items():
+            if pin_name in ("EN",) or not pin.refs:
+                continue
+            if pin_name in e.inouts:
+                src = self.by_id[pin.refs[0].source] if len(pin.refs) == 1 else None
+                if src is None or src.kind not in ("inVariable", "inOutVariable") or not SIMPLE.match(src.text):
+                    raise GraphError(f"in-out {pin_name} of {e.type_name} ({e.id}) must be wired to a variable",
+                                     e.line, e.id)
+                if inout_only == pin_name:
+                    return Ex(src.text, ATOM)
+                args.append(f"{e.pin_text.get(pin_name, pin_name)} := {src.text}")
+                continue
+            v = self.value(self.key_in(e.id, pin_name), out)
+            if self.counting:
+                continue
+            if pin.edge in ("rising", "falling"):
+                fake = Element(e.id, "block pin", e.line, 0, 0, 0, edge=pin.edge)
+                v = self.edge(fake, pin_name, v, out)
+            if pin.negated:
+                v = not_(v)
+            args.append(f"{e.pin_text.get(pin_name, pin_name)} := {v.text}")
+        return Ex(", ".join(args))
+
+    def block_action(self, e: Element, out: list[Line]) -> None:
+        en = None
+        if "EN" in e.inputs and e.inputs["EN"].refs:
+            en = self.value(self.key_in(e.id, "EN"), out)
+            if en is not None and en.text == "TRUE":
+                en = None
+        args = self.block_args(e, out)
+        if self.counting:
+            if self.is_fb(e):
+                self.fb_instance(e)
+            return
+        parts = [f"EN := {en.text}"] if en is not None else []
+        if args.text:
+            parts.append(args.text)
+        if self.is_fb(e):
+            inst = self.fb_instance(e)
+            if self.eno_used(e):
+                parts.append(f"ENO => {self.temp_name(e, 'ENO')}")
+            out.append(Line(f"{inst}({', '.join(parts)});", e.id))
+            return
+        if self.pure_function(e):
+            return                      # evaluated where its output is read
+        if self.eno_used(e):
+            parts.append(f"ENO => {self.temp_name(e, 'ENO')}")
+        for pin in e.outputs:
+            if pin not in ("OUT", "ENO") and pin not in e.inouts and self.reads.get((e.id, pin)):
+                parts.append(f"{e.pin_text.get(pin, pin)} => {self.temp_name(e, pin)}")
+        call = f"{e.type_name}({', '.join(parts)})"
+        if "OUT" in e.outputs and self.reads.get((e.id, "OUT")):
+            out.append(Line(f"{self.temp_name(e, 'OUT')} := {call};", e.id))
+        else:
+            out.append(Line(f"{call};", e.id))
+
+    # ----------------------------------------------------------------- actions --
+    def is_action(self, e: Element) -> bool:
+        if e.kind == "block":
+            return not self.pure_function(e)
+        return e.kind in ("coil", "outVariable", "inOutVariable", "jump", "return")
+
+    def action(self, e: Element, out: list[Line]) -> None:
+        if e.kind == "block":
+            self.block_action(e, out)
+            return
+        flow = self.value(self.key_in(e.id, ""), out)
+        if self.counting:
+            return
+        if flow is None:
+            if e.kind in ("coil", "jump", "return"):
+                self.warnings.append((f"{e.kind} {e.id} has no power flow wired to it: it never acts", e))
+            flow = FALSE
+        if e.kind == "coil":
+            self.coil(e, flow, out)
+        elif e.kind in ("outVariable", "inOutVariable"):
+            if e.kind == "inOutVariable" and e.inputs[""].negated:
+                flow = not_(flow)
+            val = not_(flow) if e.kind == "outVariable" and e.negated else flow
+            out.append(Line(f"{e.text} := {val.text};", e.id))
+        elif e.kind == "jump":
+            out.append(Line(f"{self.jump_flag(e.text)} := {flow.text};", e.id))
+        elif e.kind == "return":
+            if flow.text == "TRUE":
+                out.append(Line("RETURN;", e.id))
+            else:
+                out.append(Line(f"IF {flow.text} THEN RETURN; END_IF;", e.id))
+
+    def coil(self, e: Element, flow: Ex, out: list[Line]) -> None:
+        if e.negated and e.storage != "none":
+            raise GraphError(f"a negated {e.storage} coil has no meaning in IEC 61131-3: use a {e.storage} coil "
+                             "after a negated contact", e.line, e.id)
+        if e.edge in ("rising", "falling"):
+            flow = self.edge(e, "", flow, out)
+        if e.storage == "set":
+            out.append(Line(f"IF {flow.text} THEN {e.text} := TRUE; END_IF;", e.id))
+        elif e.storage == "reset":
+            out.append(Line(f"IF {flow.text} THEN {e.text} := FALSE; END_IF;", e.id))
+        else:
+            out.append(Line(f"{e.text} := {(not_(flow) if e.negated else flow).text};", e.id))
+
+    def jump_flag(self, label: str) -> str:
+        return self.fresh(f"skipTo{label}", "BOOL", f"a jump to label {label} was taken", ("jump", label.upper()))
+
+    # --------------------------------------------------------------- ordering --
+    def upstream_actions(self, e: Element) -> set[int]:
+        """Actions whose outputs reach e's inputs through pure elements."""
+        found: set[int] = set()
+        stack = [r.source for p in e.inputs.values() for r in p.refs]
+        seen: set[int] = set()
+        while stack:
+            i = stack.pop()
+            if i in seen:
+                continue
+            seen.add(i)
+            src = self.by_id[i]
+            if src.kind in RAILS:
+                continue
+            if self.is_action(src):
+                found.add(i)
+                if src.kind != "coil":
+                    continue
+            if src.kind == "continuation":
+                conn = self.connectors.get(src.text.upper())
+                if conn is not None:
+                    stack.append(conn.id)
+            stack.extend(r.source for p in src.inputs.values() for r in p.refs)
+        return found
+
+    def action_order(self, net: list[Element]) -> list[Element]:
+        acts = [e for e in net if self.is_action(e)]
+        late = {"jump": 1, "return": 1}
+        if acts and all(a.order > 0 for a in acts):
+            return sorted(acts, key=lambda a: (late.get(a.kind, 0), a.order, a.id))
+        deps = {a.id: self.upstream_actions(a) & {b.id for b in acts} - {a.id} for a in acts}
+        return topo(acts, deps, lambda a: (late.get(a.kind, 0), a.key()))
+
+    # -------------------------------------------------------------- translate --
+    def run(self) -> BodyST:
+        check_refs(self.elems)
+        self.warnings: list[tuple[str, Element]] = []
+        self.reads = Counter()
+        for e in self.elems:
+            for p in e.inputs.values():
+                for r in p.refs:
+                    self.reads[(r.source, r.pin)] += 1
+        nets = networks(self.elems)
+        ordered = self.order_networks(nets)
+        # pass 1 counts how often each value is read; pass 2 writes the ST
+        self.counting, self.counts, self.temps, self.temp_needed = True, Counter(), {}, set()
+        self.in_progress: set = set()
+        for item in ordered:
+            if isinstance(item, list):
+                for a in self.action_order(item):
+                    self.action(a, [])
+        self.counting = False
+        return self.emit(ordered, len(nets))
+
+    def emit(self, ordered: list, n_networks: int) -> BodyST:
+        lines: list[Line] = []
+        jumps = {}            # label -> first index of a network holding a jump to it
+        positions = {}        # label -> index in ordered
+        for i, item in enumerate(ordered):
+            if isinstance(item, Element):
+                positions[item.text.upper()] = i
+        for i, item in enumerate(ordered):
+            if isinstance(item, list):
+                for e in item:
+                    if e.kind == "jump":
+                        target = positions.get(e.text.upper())
+                        if target is None:
+                            raise GraphError(f"jump to label '{e.text}', which this body does not have",
+                                             e.line, e.id)
+                        if target <= i:
+                            raise GraphError(f"jump back to label '{e.text}' (a loop within one scan): only "
+                                             "forward jumps are supported", e.line, e.id)
+                        jumps.setdefault(e.text.upper(), []).append((i, target))
+        if jumps:
+            lines.append(Line("(* jumps not taken yet in this call *)", None))
+            for label in jumps:
+                lines.append(Line(f"{self.jump_flag(label)} := FALSE;", None))
+        open_guard: tuple[str, ...] = ()
+        number = 0
+        for i, item in enumerate(ordered):
+            guard = tuple(sorted(self.jump_flag(lb) for lb, spans in jumps.items()
+                                 if any(a < i < t for a, t in spans)))
+            if guard != open_guard:
+                if open_guard:
+                    lines.append(Line("END_IF;", None))
+                if guard:
+                    lines.append(Line(f"IF NOT ({' OR '.join(guard)}) THEN" if len(guard) > 1
+                                      else f"IF NOT {guard[0]} THEN", None))
+                open_guard = guard
+            ind = "    " if guard else ""
+            if isinstance(item, Element):
+                lines.append(Line(f"{ind}(* label {item.text} *)", item.id))
+                continue
+            number += 1
+            lines.append(Line(f"{ind}(* {self.describe(item, number)} *)", min(e.id for e in item)))
+            body: list[Line] = []
+            for a in self.action_order(item):
+                self.action(a, body)
+            lines.extend(Line(ind + ln.text, ln.local_id) for ln in body)
+        if open_guard:
+            lines.append(Line("END_IF;", None))
+        return BodyST(lines, self.decls, n_networks)
+
+    def describe(self, net: list[Element], number: int) -> str:
+        word = "rung" if self.language == "LD" else "network"
+        ids = ", ".join(str(e.id) for e in sorted(net, key=lambda e: e.id))
+        text = f"{word} {number} (localId {ids})"
+        notes = [c.text for c in self.comments.get(id(net), [])]
+        if notes:
+            text += ": " + " / ".join(n.replace("(*", "( *").replace("*)", "* )") for n in notes)
+        return text
+
+    def order_networks(self, nets: list[list[Element]]) -> list:
+        """Networks and labels in execution order (labels are Elements, networks lists)."""
+        labels = sorted((e for e in self.elems if e.kind == "label"), key=lambda e: (e.order or 0, e.key()))
+        comments = [e for e in self.elems if e.kind == "comment"]
+        self.comments: dict[int, list[Element]] = {}
+        for c in comments:
+            below = [n for n in nets if min(e.y for e in n) >= c.y]
+            if below:
+                target = min(below, key=lambda n: (min(e.y for e in n), min(e.x for e in n)))
+                self.comments.setdefault(id(target), []).append(c)
+        all_ordered = nets and all(any(e.order > 0 for e in n) for n in nets) and all(lb.order > 0 for lb in labels)
+
+        def first_order(n):
+            return min(e.order for e in n if e.order > 0)
+
+        parts: list[list[list[Element]]] = [[] for _ in range(len(labels) + 1)]
+        for n in nets:
+            idx = 0
+            for k, lb in enumerate(labels):
+                if (first_order(n) > lb.order) if all_ordered else (min(e.y for e in n) >= lb.y):
+                    idx = k + 1
+            parts[idx].append(n)
+        out: list = []
+        for k, part in enumerate(parts):
+            if k > 0:
+                out.append(labels[k - 1])
+            if all_ordered:
+                out.extend(sorted(part, key=first_order))
+            else:
+                out.extend(self.dataflow_order(part))
+        return out
+
+    def dataflow_order(self, part: list[list[Element]]) -> list[list[Element]]:
+        writes, reads = [], []
+        for n in part:
+            w, r = set(), set()
+            for e in n:
+                if e.kind == "coil" or e.kind in ("outVariable", "inOutVariable"):
+                    m = IDENT.match(e.text)
+                    if m:
+                        w.add(m.group(0).upper())
+                if e.kind == "block" and e.instance:
+                    w.add(e.instance.upper())
+                if e.kind in ("contact", "inVariable", "inOutVariable"):
+                    r.update(t.upper() for t in IDENT.findall(e.text))
+            writes.append(w)
+            reads.append(r)
+        idx = {id(n): i for i, n in enumerate(part)}
+        deps = {i: {j for j in range(len(part)) if j != i and writes[j] & reads[i]} for i in range(len(part))}
+        keyed = [(i, n) for i, n in enumerate(part)]
+        order = topo(keyed, {i: deps[i] for i, _ in keyed},
+                     lambda item: (min(e.y for e in item[1]), min(e.x for e in item[1]), min(e.id for e in item[1])),
+                     ident=lambda item: item[0])
+        del idx
+        return [n for _i, n in order]
+
+
+def topo(items: list, deps: dict, key, ident=lambda a: a.id) -> list:
+    """Kahn's algorithm; among ready items the smallest key first; a cycle is broken at its smallest key."""
+    remaining = {ident(a): a for a in items}
+    pending = {ident(a): set(deps[ident(a)]) for a in items}
+    out = []
+    counter = 0
+    while remaining:
+        ready = [(key(a), n, a) for n, a in remaining.items() if not (pending[n] & remaining.keys())]
+        if not ready:
+            ready = [(key(a), n, a) for n, a in remaining.items()]
+        heapq.heapify(ready)
+        _k, n, a = heapq.heappop(ready)
+        out.append(a)
+        del remaining[n]
+        counter += 1
+    return out
+
+
+def translate_body(body, ctx: Context, language: str) -> BodyST:
+    """An <LD> or <FBD> element as ST lines (GraphError at the first problem)."""
+    elems = read_elements(body)
+    return Translator(elems, ctx, language).run()
