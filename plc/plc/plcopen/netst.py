@@ -28,6 +28,7 @@ SIMPLE = re.compile(r"^(?:[A-Za-z_][\w]*(?:\.[A-Za-z_]\w*|\[[^\]]*\])*|%[IQM][XB
 LITERAL = re.compile(r"^(?:TRUE|FALSE|[+-]?\d[\d_]*(?:\.\d+)?(?:[eE][+-]?\d+)?|[A-Za-z_]+#.+|'.*')$", re.I)
 CONVERSION = re.compile(r"^(\w+)_TO_(\w+)$", re.I)
 # result type rule by standard-function kind (plc/plc/stdfuncs.py): a type, or the pin whose type it takes
+OPERATORS = {"AND": AND_P, "OR": OR_P, "XOR": 4, "NOT": NOT_P, "MOD": 7}
 STD_RESULT = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "STRING", "mid": "STRING",
               "concat": "STRING", "insert": "STRING", "delete": "STRING", "replace": "STRING", "trunc": "DINT",
               "num1": "IN", "real1": "IN", "arith": "IN1", "expt": "IN1", "move": "IN", "minmax": "IN1",
@@ -120,6 +121,9 @@ class Translator:
         self.decls: list[tuple[str, str, str]] = []
         self.names: dict[tuple, str] = {}
         self.connectors = {e.text.upper(): e for e in elems if e.kind == "connector"}
+        self.labels = {e.text.upper(): e.text for e in elems if e.kind == "label"}
+        self.cyclic: set[int] = set()
+        self.typing: set[int] = set()
 
     # ------------------------------------------------------------------ naming --
     def fresh(self, base: str, type_text: str, comment: str, key: tuple) -> str:
@@ -264,7 +268,7 @@ class Translator:
 
     def pure_function(self, e: Element) -> bool:
         """A function block with one output, no EN/ENO: its call is an expression."""
-        if self.is_fb(e):
+        if self.is_fb(e) or e.id in self.cyclic:
             return False
         en = e.inputs.get("EN")
         return ((en is None or not en.refs) and set(e.outputs) <= {"OUT", "ENO"}
@@ -283,7 +287,7 @@ class Translator:
         elif pin in e.inouts:
             ex = self.block_args(e, out, inout_only=pin)
         elif self.pure_function(e):
-            ex = Ex(f"{e.type_name}({self.block_args(e, out).text})", ATOM, False)
+            ex = self.call_expr(e, out)
             if self.counting:
                 return Ex("?")
         else:
@@ -294,12 +298,44 @@ class Translator:
             ex = Ex(self.temp_name(e, pin), ATOM, True)
         return not_(ex) if e.outputs[pin].negated else ex
 
+    def call_expr(self, e: Element, out: list[Line]) -> Ex:
+        """The call of a function block's function as an expression; AND, OR, XOR, NOT and MOD are
+        operators in ST (they cannot be called by name)."""
+        op = e.type_name.upper()
+        if op in OPERATORS:
+            vals = self.block_values(e, out)
+            if self.counting:
+                return Ex("?")
+            if op == "NOT":
+                return not_(vals[0]) if vals else FALSE
+            prec = OPERATORS[op]
+            return Ex(f" {op} ".join(v.at(prec + 1) for v in vals), prec)
+        return Ex(f"{e.type_name}({self.block_args(e, out).text})", ATOM, False)
+
+    def block_values(self, e: Element, out: list[Line]) -> list[Ex]:
+        vals = []
+        for pin_name, pin in e.inputs.items():
+            if pin_name == "EN" or not pin.refs:
+                continue
+            v = self.value(self.key_in(e.id, pin_name), out)
+            if not self.counting and pin.negated:
+                v = not_(v)
+            vals.append(v)
+        return vals
+
     def temp_name(self, e: Element, pin: str) -> str:
         if pin == "ENO":
             return self.fresh(f"eno{e.id}", "BOOL", f"ENO of block {e.id}", ("o", e.id, "ENO"))
         return self.temp_for(("o", e.id, pin))
 
     def output_type(self, e: Element, pin: str) -> str:
+        self.typing.add(e.id)
+        try:
+            return self._output_type(e, pin)
+        finally:
+            self.typing.discard(e.id)
+
+    def _output_type(self, e: Element, pin: str) -> str:
         s = self.sig(e)
         if pin == "ENO":
             return "BOOL"
@@ -329,10 +365,15 @@ class Translator:
         if src.kind in ("inVariable", "inOutVariable"):
             return "BOOL" if src.negated else self.expr_type(src.text)
         if src.kind == "block":
+            if src.id in self.typing:
+                return None          # feedback: the type comes from another input
+            self.typing.add(src.id)
             try:
                 return self.output_type(src, refs[0].pin)
             except GraphError:
                 return None
+            finally:
+                self.typing.discard(src.id)
         return None
 
     def expr_type(self, text: str) -> str | None:
@@ -384,8 +425,10 @@ class Translator:
             en = self.value(self.key_in(e.id, "EN"), out)
             if en is not None and en.text == "TRUE":
                 en = None
-        args = self.block_args(e, out)
+        args = self.block_args(e, out) if e.type_name.upper() not in OPERATORS else Ex("")
         if self.counting:
+            if e.type_name.upper() in OPERATORS:
+                self.call_expr(e, out)
             if self.is_fb(e):
                 self.fb_instance(e)
             return
@@ -400,6 +443,16 @@ class Translator:
             return
         if self.pure_function(e):
             return                      # evaluated where its output is read
+        if e.type_name.upper() in OPERATORS:
+            expr = self.call_expr(e, out)
+            target = self.temp_name(e, "OUT")
+            if en is None:
+                out.append(Line(f"{target} := {expr.text};", e.id))
+            else:
+                out.append(Line(f"IF {en.text} THEN {target} := {expr.text}; END_IF;", e.id))
+            if self.eno_used(e):
+                out.append(Line(f"{self.temp_name(e, 'ENO')} := {en.text if en is not None else 'TRUE'};", e.id))
+            return
         if self.eno_used(e):
             parts.append(f"ENO => {self.temp_name(e, 'ENO')}")
         for pin in e.outputs:
@@ -457,7 +510,9 @@ class Translator:
             out.append(Line(f"{e.text} := {(not_(flow) if e.negated else flow).text};", e.id))
 
     def jump_flag(self, label: str) -> str:
-        return self.fresh(f"skipTo{label}", "BOOL", f"a jump to label {label} was taken", ("jump", label.upper()))
+        spelled = self.labels.get(label.upper(), label)
+        return self.fresh(f"skipTo{spelled}", "BOOL", f"a jump to label {spelled} was taken",
+                          ("jump", label.upper()))
 
     # --------------------------------------------------------------- ordering --
     def upstream_actions(self, e: Element) -> set[int]:
@@ -484,6 +539,29 @@ class Translator:
             stack.extend(r.source for p in src.inputs.values() for r in p.refs)
         return found
 
+    def blocks_in_cycles(self) -> set[int]:
+        """Blocks whose output comes back to one of their inputs (feedback): they run as statements, and
+        the wire that closes the loop reads the previous scan's value."""
+        found = set()
+        for e in self.elems:
+            if e.kind != "block":
+                continue
+            stack = [r.source for p in e.inputs.values() for r in p.refs]
+            seen: set[int] = set()
+            while stack:
+                i = stack.pop()
+                if i == e.id:
+                    found.add(e.id)
+                    break
+                if i in seen:
+                    continue
+                seen.add(i)
+                src = self.by_id[i]
+                if src.kind == "continuation" and src.text.upper() in self.connectors:
+                    stack.append(self.connectors[src.text.upper()].id)
+                stack.extend(r.source for p in src.inputs.values() for r in p.refs)
+        return found
+
     def action_order(self, net: list[Element]) -> list[Element]:
         acts = [e for e in net if self.is_action(e)]
         late = {"jump": 1, "return": 1}
@@ -501,6 +579,7 @@ class Translator:
             for p in e.inputs.values():
                 for r in p.refs:
                     self.reads[(r.source, r.pin)] += 1
+        self.cyclic = self.blocks_in_cycles()
         nets = networks(self.elems)
         ordered = self.order_networks(nets)
         # pass 1 counts how often each value is read; pass 2 writes the ST
