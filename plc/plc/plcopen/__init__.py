@@ -65,8 +65,10 @@ class Translation:
         o = self.origin(pos.line)
         if o is None:
             return Pos(self.xml_name, 0, 0), ""
-        col = pos.col + o.col_shift if o.exact else 1
-        return Pos(self.xml_name, o.line, col), prefix(o.pou, o.local_id)
+        if o.exact:
+            return Pos(self.xml_name, o.line, pos.col + o.col_shift), prefix(o.pou, o.local_id)
+        local_id, line = o.element_at(pos.col)
+        return Pos(self.xml_name, line, 1), prefix(o.pou, local_id)
 
     def remap(self, diags: Diagnostics) -> None:
         for d in diags.items:

@@ -36,8 +36,12 @@ TOKENS = re.compile(r"\(\*.*?\*\)|/\*.*?\*/|//[^\n]*|'(?:\$.|[^'])*'|\"(?:\$.|[^
                     r"\bSTRUCT\b|\bEND_STRUCT\b|[;()\[\]]|:=", re.S | re.I)
 
 
+NSMAP = {None: NS, "xhtml": XHTML, "xsd": "http://www.w3.org/2001/XMLSchema"}
+
+
 def E(tag: str, parent=None, **attrs):
-    el = etree.Element(f"{{{NS}}}{tag}") if parent is None else etree.SubElement(parent, f"{{{NS}}}{tag}")
+    el = etree.Element(f"{{{NS}}}{tag}", nsmap=NSMAP) if parent is None else \
+        etree.SubElement(parent, f"{{{NS}}}{tag}")
     for k, v in attrs.items():
         el.set(k, str(v))
     return el

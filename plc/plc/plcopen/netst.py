@@ -37,13 +37,43 @@ STD_RESULT = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "STRING"
 
 @dataclass
 class Ex:
-    """An ST expression and its precedence (ATOM binds tightest)."""
+    """An ST expression, its precedence (ATOM binds tightest) and which element wrote which part of it
+    (spans of (start, end, localId), so a diagnostic inside the text finds its element)."""
     text: str
     prec: int = ATOM
     stable: bool = False     # a constant, a temporary or an FB output: reading it twice reads the same value
+    spans: tuple = ()
 
-    def at(self, prec: int) -> str:
-        return self.text if self.prec >= prec else f"({self.text})"
+    def at(self, prec: int) -> "Ex":
+        if self.prec >= prec:
+            return self
+        return Ex(f"({self.text})", ATOM, self.stable, tuple((a + 1, b + 1, i) for a, b, i in self.spans))
+
+
+def cat(*parts, prec: int = ATOM, stable: bool = False) -> Ex:
+    """Strings and expressions joined into one expression, the spans shifted to their place."""
+    text, spans = "", []
+    for p in parts:
+        if isinstance(p, Ex):
+            spans += [(a + len(text), b + len(text), i) for a, b, i in p.spans]
+            text += p.text
+        else:
+            text += p
+    return Ex(text, prec, stable, tuple(spans))
+
+
+def tag(ex: Ex, local_id: int) -> Ex:
+    """The whole expression marked as written by element local_id."""
+    return Ex(ex.text, ex.prec, ex.stable, ex.spans + ((0, len(ex.text), local_id),))
+
+
+def join(sep: str, items: list) -> list:
+    out: list = []
+    for k, it in enumerate(items):
+        if k:
+            out.append(sep)
+        out.append(it)
+    return out
 
 
 TRUE = Ex("TRUE", ATOM, True)
@@ -55,7 +85,7 @@ def and_(a: Ex, b: Ex) -> Ex:
         return b
     if b.text == "TRUE":
         return a
-    return Ex(f"{a.at(AND_P)} AND {b.at(AND_P + 1)}", AND_P)
+    return cat(a.at(AND_P), " AND ", b.at(AND_P + 1), prec=AND_P)
 
 
 def or_(items: list[Ex]) -> Ex:
@@ -63,7 +93,7 @@ def or_(items: list[Ex]) -> Ex:
         return TRUE
     if len(items) == 1:
         return items[0]
-    return Ex(" OR ".join(i.at(OR_P + 1) for i in items), OR_P)
+    return cat(*join(" OR ", [i.at(OR_P + 1) for i in items]), prec=OR_P)
 
 
 def not_(a: Ex) -> Ex:
@@ -71,7 +101,7 @@ def not_(a: Ex) -> Ex:
         return FALSE
     if a.text == "FALSE":
         return TRUE
-    return Ex(f"NOT {a.at(NOT_P)}", NOT_P)
+    return cat("NOT ", a.at(NOT_P), prec=NOT_P)
 
 
 @dataclass
@@ -98,6 +128,12 @@ class Context:
 class Line:
     text: str
     local_id: int | None
+    spans: tuple = ()          # (start, end, localId) of the parts other elements wrote
+
+    @staticmethod
+    def of(local_id: int | None, *parts) -> "Line":
+        ex = cat(*parts)
+        return Line(ex.text, local_id, ex.spans)
 
 
 @dataclass
@@ -179,7 +215,7 @@ class Translator:
         self.in_progress.discard(key)
         if self.counts[key] > 1 and not ex.stable:
             name = self.temp_for(key)
-            out.append(Line(f"{name} := {ex.text};", key[1]))
+            out.append(Line.of(key[1], name, " := ", ex, ";"))
             ex = Ex(name, ATOM, True)
             self.temps[key] = ex
         return ex
@@ -212,19 +248,19 @@ class Translator:
                 return Ex("?")
             return and_(flow if flow is not None else FALSE, self.contact_term(e, out))
         if e.kind == "inVariable":
-            ex = expr_of(e.text)
+            ex = tag(expr_of(e.text), eid)
             if e.edge in ("rising", "falling"):
                 ex = self.edge(e, "", ex, out)
             return not_(ex) if e.negated else ex
         if e.kind == "inOutVariable":
-            ex = expr_of(e.text)
+            ex = tag(expr_of(e.text), eid)
             return not_(ex) if e.negated else ex
         if e.kind == "block":
             return self.block_output(e, pin, out)
         raise GraphError(f"{e.kind} {eid} has no output to read", e.line, eid)
 
     def contact_term(self, e: Element, out: list[Line]) -> Ex:
-        var = expr_of(e.text)
+        var = tag(expr_of(e.text), e.id)
         if e.edge in ("rising", "falling"):
             if e.negated:
                 raise GraphError("a contact is either negated or edge-sensing, not both", e.line, e.id)
@@ -240,7 +276,7 @@ class Translator:
         name = self.fresh(f"{base}{e.id}{pin.capitalize()}", fb, f"{e.edge} edge of {e.kind} {e.id}",
                           ("edge", e.id, pin))
         if not self.counting:
-            out.append(Line(f"{name}(CLK := {clk.text});", e.id))
+            out.append(Line.of(e.id, f"{name}(CLK := ", clk, ");"))
         return Ex(f"{name}.Q", ATOM, True)
 
     # ------------------------------------------------------------------ blocks --
@@ -309,8 +345,8 @@ class Translator:
             if op == "NOT":
                 return not_(vals[0]) if vals else FALSE
             prec = OPERATORS[op]
-            return Ex(f" {op} ".join(v.at(prec + 1) for v in vals), prec)
-        return Ex(f"{e.type_name}({self.block_args(e, out).text})", ATOM, False)
+            return tag(cat(*join(f" {op} ", [v.at(prec + 1) for v in vals]), prec=prec), e.id)
+        return tag(cat(f"{e.type_name}(", self.block_args(e, out), ")"), e.id)
 
     def block_values(self, e: Element, out: list[Line]) -> list[Ex]:
         vals = []
@@ -405,8 +441,8 @@ class Translator:
                     raise GraphError(f"in-out {pin_name} of {e.type_name} ({e.id}) must be wired to a variable",
                                      e.line, e.id)
                 if inout_only == pin_name:
-                    return Ex(src.text, ATOM)
-                args.append(f"{e.pin_text.get(pin_name, pin_name)} := {src.text}")
+                    return tag(Ex(src.text, ATOM), src.id)
+                args.append(cat(f"{e.pin_text.get(pin_name, pin_name)} := ", tag(Ex(src.text), src.id)))
                 continue
             v = self.value(self.key_in(e.id, pin_name), out)
             if self.counting:
@@ -416,8 +452,8 @@ class Translator:
                 v = self.edge(fake, pin_name, v, out)
             if pin.negated:
                 v = not_(v)
-            args.append(f"{e.pin_text.get(pin_name, pin_name)} := {v.text}")
-        return Ex(", ".join(args))
+            args.append(cat(f"{e.pin_text.get(pin_name, pin_name)} := ", v))
+        return cat(*join(", ", args))
 
     def block_action(self, e: Element, out: list[Line]) -> None:
         en = None
@@ -432,14 +468,14 @@ class Translator:
             if self.is_fb(e):
                 self.fb_instance(e)
             return
-        parts = [f"EN := {en.text}"] if en is not None else []
+        parts = [cat("EN := ", en)] if en is not None else []
         if args.text:
-            parts.append(args.text)
+            parts.append(args)
         if self.is_fb(e):
             inst = self.fb_instance(e)
             if self.eno_used(e):
                 parts.append(f"ENO => {self.temp_name(e, 'ENO')}")
-            out.append(Line(f"{inst}({', '.join(parts)});", e.id))
+            out.append(Line.of(e.id, f"{inst}(", *join(", ", parts), ");"))
             return
         if self.pure_function(e):
             return                      # evaluated where its output is read
@@ -447,22 +483,22 @@ class Translator:
             expr = self.call_expr(e, out)
             target = self.temp_name(e, "OUT")
             if en is None:
-                out.append(Line(f"{target} := {expr.text};", e.id))
+                out.append(Line.of(e.id, f"{target} := ", expr, ";"))
             else:
-                out.append(Line(f"IF {en.text} THEN {target} := {expr.text}; END_IF;", e.id))
+                out.append(Line.of(e.id, "IF ", en, f" THEN {target} := ", expr, "; END_IF;"))
             if self.eno_used(e):
-                out.append(Line(f"{self.temp_name(e, 'ENO')} := {en.text if en is not None else 'TRUE'};", e.id))
+                out.append(Line.of(e.id, f"{self.temp_name(e, 'ENO')} := ", en if en is not None else TRUE, ";"))
             return
         if self.eno_used(e):
             parts.append(f"ENO => {self.temp_name(e, 'ENO')}")
         for pin in e.outputs:
             if pin not in ("OUT", "ENO") and pin not in e.inouts and self.reads.get((e.id, pin)):
                 parts.append(f"{e.pin_text.get(pin, pin)} => {self.temp_name(e, pin)}")
-        call = f"{e.type_name}({', '.join(parts)})"
+        call = cat(f"{e.type_name}(", *join(", ", parts), ")")
         if "OUT" in e.outputs and self.reads.get((e.id, "OUT")):
-            out.append(Line(f"{self.temp_name(e, 'OUT')} := {call};", e.id))
+            out.append(Line.of(e.id, f"{self.temp_name(e, 'OUT')} := ", call, ";"))
         else:
-            out.append(Line(f"{call};", e.id))
+            out.append(Line.of(e.id, call, ";"))
 
     # ----------------------------------------------------------------- actions --
     def is_action(self, e: Element) -> bool:
@@ -487,14 +523,14 @@ class Translator:
             if e.kind == "inOutVariable" and e.inputs[""].negated:
                 flow = not_(flow)
             val = not_(flow) if e.kind == "outVariable" and e.negated else flow
-            out.append(Line(f"{e.text} := {val.text};", e.id))
+            out.append(Line.of(e.id, tag(Ex(e.text), e.id), " := ", val, ";"))
         elif e.kind == "jump":
-            out.append(Line(f"{self.jump_flag(e.text)} := {flow.text};", e.id))
+            out.append(Line.of(e.id, f"{self.jump_flag(e.text)} := ", flow, ";"))
         elif e.kind == "return":
             if flow.text == "TRUE":
                 out.append(Line("RETURN;", e.id))
             else:
-                out.append(Line(f"IF {flow.text} THEN RETURN; END_IF;", e.id))
+                out.append(Line.of(e.id, "IF ", flow, " THEN RETURN; END_IF;"))
 
     def coil(self, e: Element, flow: Ex, out: list[Line]) -> None:
         if e.negated and e.storage != "none":
@@ -502,12 +538,13 @@ class Translator:
                              "after a negated contact", e.line, e.id)
         if e.edge in ("rising", "falling"):
             flow = self.edge(e, "", flow, out)
+        var = tag(Ex(e.text), e.id)
         if e.storage == "set":
-            out.append(Line(f"IF {flow.text} THEN {e.text} := TRUE; END_IF;", e.id))
+            out.append(Line.of(e.id, "IF ", flow, " THEN ", var, " := TRUE; END_IF;"))
         elif e.storage == "reset":
-            out.append(Line(f"IF {flow.text} THEN {e.text} := FALSE; END_IF;", e.id))
+            out.append(Line.of(e.id, "IF ", flow, " THEN ", var, " := FALSE; END_IF;"))
         else:
-            out.append(Line(f"{e.text} := {(not_(flow) if e.negated else flow).text};", e.id))
+            out.append(Line.of(e.id, var, " := ", not_(flow) if e.negated else flow, ";"))
 
     def jump_flag(self, label: str) -> str:
         spelled = self.labels.get(label.upper(), label)
@@ -636,7 +673,8 @@ class Translator:
             body: list[Line] = []
             for a in self.action_order(item):
                 self.action(a, body)
-            lines.extend(Line(ind + ln.text, ln.local_id) for ln in body)
+            lines.extend(Line(ind + ln.text, ln.local_id, tuple((a + len(ind), b + len(ind), i) for a, b, i in ln.spans))
+                         for ln in body)
         if open_guard:
             lines.append(Line("END_IF;", None))
         return BodyST(lines, self.decls, n_networks)
@@ -697,13 +735,11 @@ class Translator:
                     r.update(t.upper() for t in IDENT.findall(e.text))
             writes.append(w)
             reads.append(r)
-        idx = {id(n): i for i, n in enumerate(part)}
         deps = {i: {j for j in range(len(part)) if j != i and writes[j] & reads[i]} for i in range(len(part))}
         keyed = [(i, n) for i, n in enumerate(part)]
         order = topo(keyed, {i: deps[i] for i, _ in keyed},
                      lambda item: (min(e.y for e in item[1]), min(e.x for e in item[1]), min(e.id for e in item[1])),
                      ident=lambda item: item[0])
-        del idx
         return [n for _i, n in order]
 
 
@@ -712,7 +748,6 @@ def topo(items: list, deps: dict, key, ident=lambda a: a.id) -> list:
     remaining = {ident(a): a for a in items}
     pending = {ident(a): set(deps[ident(a)]) for a in items}
     out = []
-    counter = 0
     while remaining:
         ready = [(key(a), n, a) for n, a in remaining.items() if not (pending[n] & remaining.keys())]
         if not ready:
@@ -721,7 +756,6 @@ def topo(items: list, deps: dict, key, ident=lambda a: a.id) -> list:
         _k, n, a = heapq.heappop(ready)
         out.append(a)
         del remaining[n]
-        counter += 1
     return out
 
 

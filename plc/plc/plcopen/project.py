@@ -29,6 +29,15 @@ class Origin:
     pou: str = ""
     local_id: int | None = None
     exact: bool = False       # the ST text is the XML text (an ST body): columns map one to one
+    spans: tuple = ()         # (first col, end col, localId, XML line) of the parts other elements wrote
+
+    def element_at(self, col: int) -> tuple[int | None, int]:
+        """localId and XML line of the innermost element whose text covers 1-based column col."""
+        inside = [s for s in self.spans if s[0] < col <= s[1]]
+        if not inside:
+            return self.local_id, self.line
+        a, b, lid, line = min(inside, key=lambda s: s[1] - s[0])
+        return lid, line
 
 
 @dataclass
@@ -224,7 +233,8 @@ class ProjectReader:
                 el_line = line_of(body)
                 if ln.local_id is not None:
                     el_line = self.element_line(body, ln.local_id)
-                unit.add(ln.text, Origin(el_line, pou=name, local_id=ln.local_id))
+                spans = tuple((a, b, i, self.element_line(body, i)) for a, b, i in ln.spans)
+                unit.add(ln.text, Origin(el_line, pou=name, local_id=ln.local_id, spans=spans))
         unit.add(f"END_{kind}", Origin(line_of(p), pou=name))
         return unit
 
