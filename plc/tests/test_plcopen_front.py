@@ -263,3 +263,10 @@ def test_export_cli_usage_errors(tmp_path):
     (tmp_path / "bad.st").write_text("PROGRAM P\nx := ;\nEND_PROGRAM\n")
     r = plc("export", "plcopen", "--out", str(tmp_path / "x.xml"), str(tmp_path))
     assert r.returncode == 1 and "nothing written" in r.stderr and not (tmp_path / "x.xml").exists()
+
+
+def test_a_coil_with_nothing_wired_to_it_is_a_warning(tmp_path):
+    b = Body().left_rail(1).coil(3, "q", None).right_rail(4, [3])
+    text = project([pou("FB_X", "functionBlock", b, outputs=[("q", "BOOL")])])
+    r = plc("check", str(write(tmp_path, text)))
+    assert r.returncode == 0 and "element localId 3: coil 3 has no power flow wired to it" in r.stderr, r.stderr

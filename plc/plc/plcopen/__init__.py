@@ -89,7 +89,7 @@ def translate(name: str, data: bytes, diags: Diagnostics) -> Translation | None:
     """The project in `data` as ST units; None (with an error in diags) when it cannot be read."""
     try:
         root = parse_bytes(data)
-        units = read_project(root, data)
+        units, warnings = read_project(root, data)
     except XmlError as e:
         diags.error(Pos(name, e.line, e.col or 1), str(e))
         return None
@@ -99,4 +99,6 @@ def translate(name: str, data: bytes, diags: Diagnostics) -> Translation | None:
     except TypeError_ as e:
         diags.error(Pos(name, e.line, 1), str(e))
         return None
+    for message, line, pou, local_id in warnings:
+        diags.warning(Pos(name, line, 1), prefix(pou, local_id) + message)
     return Translation(name, units)

@@ -141,6 +141,7 @@ class BodyST:
     lines: list[Line]
     decls: list[tuple[str, str, str]]                # (name, type, comment) of generated variables
     networks: int
+    warnings: list[tuple[str, Element]] = field(default_factory=list)
 
 
 def expr_of(text: str) -> Ex:
@@ -677,7 +678,7 @@ class Translator:
                          for ln in body)
         if open_guard:
             lines.append(Line("END_IF;", None))
-        return BodyST(lines, self.decls, n_networks)
+        return BodyST(lines, self.decls, n_networks, self.warnings)
 
     def describe(self, net: list[Element], number: int) -> str:
         word = "rung" if self.language == "LD" else "network"

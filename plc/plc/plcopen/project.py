@@ -102,6 +102,7 @@ class ProjectReader:
         self.sigs: dict[str, Sig] = {**standard_function_sigs(), **standard_fb_sigs()}
         self.global_types: dict[str, str] = {}
         self.type_names: set[str] = set()
+        self.warnings: list[tuple[str, int, str, int | None]] = []    # message, XML line, POU, localId
 
     # ----------------------------------------------------------------- project --
     def read(self) -> list[Unit]:
@@ -221,6 +222,7 @@ class ProjectReader:
             except GraphError as e:
                 raise ProjectError(str(e), e.line, name, e.local_id) from None
             unit.networks = result.networks
+            self.warnings += [(msg, e.line, name, e.id) for msg, e in result.warnings]
             if result.decls:
                 unit.add(f"VAR (* generated from the {language} body: power flow shared by several elements, edge "
                          "detectors and block outputs, named after their localId *)", Origin(line_of(body), pou=name))
@@ -321,6 +323,8 @@ class ProjectReader:
         return unit
 
 
-def read_project(root, raw: bytes) -> list[Unit]:
-    return ProjectReader(root, raw).read()
+def read_project(root, raw: bytes) -> tuple[list[Unit], list[tuple[str, int, str, int | None]]]:
+    """The units of the project and the warnings met on the way (message, XML line, POU, localId)."""
+    reader = ProjectReader(root, raw)
+    return reader.read(), reader.warnings
 
