@@ -11,6 +11,7 @@ and the configuration become ST; the compiler proper never sees XML.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,11 +54,13 @@ class Translation:
     def text(self) -> str:
         return "\n".join(line for u in self.units for line, _o in u.lines) + "\n"
 
+    @functools.cached_property
     def origins(self) -> list[Origin]:
+        """The origin of every line of `text`, in order."""
         return [o for u in self.units for _l, o in u.lines]
 
     def origin(self, st_line: int) -> Origin | None:
-        table = self.origins()
+        table = self.origins
         return table[st_line - 1] if 1 <= st_line <= len(table) else None
 
     def where(self, pos: Pos) -> tuple[Pos, str]:

@@ -736,7 +736,11 @@ class Translator:
                     r.update(t.upper() for t in IDENT.findall(e.text))
             writes.append(w)
             reads.append(r)
-        deps = {i: {j for j in range(len(part)) if j != i and writes[j] & reads[i]} for i in range(len(part))}
+        writers: dict[str, set[int]] = {}
+        for j, w in enumerate(writes):
+            for name in w:
+                writers.setdefault(name, set()).add(j)
+        deps = {i: set().union(*(writers.get(name, set()) for name in reads[i])) - {i} for i in range(len(part))}
         keyed = [(i, n) for i, n in enumerate(part)]
         order = topo(keyed, {i: deps[i] for i, _ in keyed},
                      lambda item: (min(e.y for e in item[1]), min(e.x for e in item[1]), min(e.id for e in item[1])),
@@ -745,18 +749,31 @@ class Translator:
 
 
 def topo(items: list, deps: dict, key, ident=lambda a: a.id) -> list:
-    """Kahn's algorithm; among ready items the smallest key first; a cycle is broken at its smallest key."""
-    remaining = {ident(a): a for a in items}
-    pending = {ident(a): set(deps[ident(a)]) for a in items}
+    """Kahn's algorithm: among ready items the smallest key first; a cycle is broken at its smallest key."""
+    by_id = {ident(a): a for a in items}
+    keys = {i: key(a) for i, a in by_id.items()}
+    pending = {i: {d for d in deps[i] if d in by_id and d != i} for i in by_id}
+    successors: dict = {i: [] for i in by_id}
+    for i, ds in pending.items():
+        for d in ds:
+            successors[d].append(i)
+    ready = [(keys[i], i) for i, ds in pending.items() if not ds]
+    heapq.heapify(ready)
+    remaining = set(by_id)
     out = []
     while remaining:
-        ready = [(key(a), n, a) for n, a in remaining.items() if not (pending[n] & remaining.keys())]
-        if not ready:
-            ready = [(key(a), n, a) for n, a in remaining.items()]
-        heapq.heapify(ready)
-        _k, n, a = heapq.heappop(ready)
-        out.append(a)
-        del remaining[n]
+        if not ready:                        # a cycle: start it at its smallest key
+            i = min(remaining, key=lambda n: (keys[n], n))
+            heapq.heappush(ready, (keys[i], i))
+        _k, i = heapq.heappop(ready)
+        if i not in remaining:
+            continue
+        remaining.discard(i)
+        out.append(by_id[i])
+        for nxt in successors[i]:
+            pending[nxt].discard(i)
+            if not pending[nxt] and nxt in remaining:
+                heapq.heappush(ready, (keys[nxt], nxt))
     return out
 
 

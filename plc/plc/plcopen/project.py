@@ -103,6 +103,7 @@ class ProjectReader:
         self.global_types: dict[str, str] = {}
         self.type_names: set[str] = set()
         self.warnings: list[tuple[str, int, str, int | None]] = []    # message, XML line, POU, localId
+        self.element_lines: dict[int, dict[str, int]] = {}              # body -> localId -> XML line
 
     # ----------------------------------------------------------------- project --
     def read(self) -> list[Unit]:
@@ -241,10 +242,11 @@ class ProjectReader:
         return unit
 
     def element_line(self, body, local_id: int) -> int:
-        for el in children(body):
-            if el.get("localId") == str(local_id):
-                return line_of(el)
-        return line_of(body)
+        lines = self.element_lines.get(id(body))
+        if lines is None:
+            lines = {el.get("localId"): line_of(el) for el in children(body)}
+            self.element_lines[id(body)] = lines
+        return lines.get(str(local_id), line_of(body))
 
     def var_list(self, unit: Unit, vl, keyword: str, pou: str, var_types: dict, taken: set) -> None:
         qual = []
