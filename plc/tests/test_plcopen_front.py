@@ -302,3 +302,26 @@ def test_mutated_editor_files_give_diagnostics_never_a_traceback():
             tr.remap(res.diags)
             for d in res.diags.items:
                 assert d.render()
+
+
+def test_beremiz_shaped_project_checks_imports_and_runs(tmp_path):
+    f = FIXTURES / "beremiz_ramp.xml"
+    r = plc("check", str(f))
+    assert r.returncode == 0 and "clean" in r.stderr, r.stderr
+    # Beremiz names its configuration config/resource1: only OpenPLC minds, and says where
+    r = plc("check", "--target", "openplc", str(f))
+    text = f.read_text()
+    assert f"beremiz_ramp.xml:{line_of(text, '<configuration name=')}:1: warning: in config: portability: " \
+        "OpenPLC needs CONFIGURATION Config0" in r.stderr
+    r = plc("import", "plcopen", str(f), "--out", str(tmp_path / "st"))
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "st").iterdir()) == [
+        "E_RampMode.st", "FB_Ramp.st", "F_Clamp.st", "Main.st", "ST_Limits.st", "config.st"]
+    res = compile_sources([f])
+    assert res.ok
+    run = run_c(res.c_text, 16)
+    level = [s["CONFIG.LEVEL"] for s in run.scans]
+    # the FBD ramp climbs 7 per scan towards 100; the ST function clamps to Limits.hi = 90
+    assert level[:13] == [7, 14, 21, 28, 35, 42, 49, 56, 63, 70, 77, 84, 90]
+    assert level[13:] == [90, 90, 90]
+    assert all(s["CONFIG.RESOURCE1.INSTANCE0.RAMPING"] for s in run.scans)

@@ -248,14 +248,13 @@ class Translator:
             if self.counting:
                 return Ex("?")
             return and_(flow if flow is not None else FALSE, self.contact_term(e, out))
-        if e.kind == "inVariable":
+        if e.kind in ("inVariable", "inOutVariable"):
+            # a variable is read where it is used, even when several elements read it (docs/ladder.md)
             ex = tag(expr_of(e.text), eid)
-            if e.edge in ("rising", "falling"):
+            if e.kind == "inVariable" and e.edge in ("rising", "falling"):
                 ex = self.edge(e, "", ex, out)
-            return not_(ex) if e.negated else ex
-        if e.kind == "inOutVariable":
-            ex = tag(expr_of(e.text), eid)
-            return not_(ex) if e.negated else ex
+            ex = not_(ex) if e.negated else ex
+            return Ex(ex.text, ex.prec, True, ex.spans)
         if e.kind == "block":
             return self.block_output(e, pin, out)
         raise GraphError(f"{e.kind} {eid} has no output to read", e.line, eid)
