@@ -325,3 +325,17 @@ def test_beremiz_shaped_project_checks_imports_and_runs(tmp_path):
     assert level[:13] == [7, 14, 21, 28, 35, 42, 49, 56, 63, 70, 77, 84, 90]
     assert level[13:] == [90, 90, 90]
     assert all(s["CONFIG.RESOURCE1.INSTANCE0.RAMPING"] for s in run.scans)
+
+
+def test_written_files_validate_against_the_tc6_schema_when_it_is_given(tmp_path):
+    """Optional cross-check: point PLCOPEN_XSD at the PLCopen TC6 v2.01 schema (tc6_xml_v201.xsd, shipped
+    with Beremiz and OpenPLC Editor); the export, the product ladder and the fixtures must validate."""
+    xsd = os.environ.get("PLCOPEN_XSD")
+    if not xsd or not Path(xsd).is_file():
+        pytest.skip("PLCOPEN_XSD is not set to the TC6 v2.01 schema file: schema validation not run")
+    from lxml import etree
+    schema = etree.XMLSchema(etree.parse(xsd))
+    (tmp_path / "atc.xml").write_bytes(export([str(REPO / "st_src")], Diagnostics()))
+    files = [tmp_path / "atc.xml", REPO / "st_src/app/FB_ChangerInterlocks.xml", *sorted(FIXTURES.glob("*.xml"))]
+    for f in files:
+        assert schema.validate(etree.parse(str(f))), (f, [str(e) for e in schema.error_log][:5])

@@ -233,8 +233,8 @@ def export(paths: list[str], diags: Diagnostics) -> bytes | None:
         found = path(x, "instances", "configurations")
         for el in children(found) if found is not None else []:
             configs.append((None, el))
+    holder = E("configurations", E("instances", root))      # required by the schema, even when empty
     if configs:
-        holder = E("configurations", E("instances", root))
         for src, c in configs:
             if src is None:
                 holder.append(copy.deepcopy(c))
@@ -243,6 +243,7 @@ def export(paths: list[str], diags: Diagnostics) -> bytes | None:
             for r in c.resources:
                 re_ = E("resource", ce, name=r.text or r.name)
                 tasks = {}
+                resource_level = []
                 for t in r.tasks:
                     te = E("task", re_, name=t.text or t.name, priority=expr_text(t.priority) if t.priority else "0")
                     if t.interval is not None:
@@ -253,8 +254,13 @@ def export(paths: list[str], diags: Diagnostics) -> bytes | None:
                 for pi in r.programs:
                     if pi.args:
                         diags.error(pi.pos, "program instances with arguments cannot be exported")
-                    E("pouInstance", tasks.get(pi.task, re_), name=pi.text or pi.name, typeName=pi.type_text)
-                var_lists(re_, r.globals, src, {"VAR_GLOBAL"})
+                    if pi.task in tasks:
+                        E("pouInstance", tasks[pi.task], name=pi.text or pi.name, typeName=pi.type_text)
+                    else:
+                        resource_level.append(pi)
+                var_lists(re_, r.globals, src, {"VAR_GLOBAL"})       # the schema's order: tasks, globals, instances
+                for pi in resource_level:
+                    E("pouInstance", re_, name=pi.text or pi.name, typeName=pi.type_text)
             var_lists(ce, c.globals, src, {"VAR_GLOBAL"})
     if diags.has_errors():
         return None
