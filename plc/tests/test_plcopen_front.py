@@ -138,9 +138,25 @@ def test_wire_to_a_missing_block_output_is_an_error(tmp_path):
     assert "has no such output" in body_error(tmp_path, b)
 
 
-def test_unknown_block_type_is_an_error(tmp_path):
+def test_unknown_block_type_is_an_error_at_the_block(tmp_path):
     b = Body("FBD").in_var(1, "a").block(2, "NO_SUCH_FB", {"IN": 1}, ["OUT"]).out_var(3, "q", (2, "OUT"))
-    assert "NO_SUCH_FB is not a known function or function block" in body_error(tmp_path, b)
+    assert "element localId 2: unknown function 'NO_SUCH_FB'" in body_error(tmp_path, b)
+    b = Body().left_rail(1).contact(2, "a", 1).block(3, "FB_Nowhere", {"EN": 2}, ["ENO"], instance="helper")
+    assert "element localId 3: unknown type 'FB_Nowhere'" in body_error(tmp_path, b)
+
+
+def test_blocks_declared_in_st_files_of_the_same_build(tmp_path):
+    b = Body().left_rail(1).contact(2, "a", 1).block(3, "FB_StDefined", {"EN": 2, "Go": 2}, ["ENO", "Done"],
+                                                     instance="helper") \
+        .block(4, "F_StDefined", {"IN": (3, "Done")}, ["OUT"], x=400).coil(5, "q", (4, "OUT"), x=600) \
+        .right_rail(6, [5])
+    write(tmp_path, project([pou("FB_Y", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])]))
+    (tmp_path / "helpers.st").write_text(
+        "FUNCTION_BLOCK FB_StDefined\nVAR_INPUT\n    Go : BOOL;\nEND_VAR\nVAR_OUTPUT\n    Done : BOOL;\nEND_VAR\n"
+        "Done := Go;\nEND_FUNCTION_BLOCK\n"
+        "FUNCTION F_StDefined : BOOL\nVAR_INPUT\n    IN : BOOL;\nEND_VAR\nF_StDefined := NOT IN;\nEND_FUNCTION\n")
+    r = plc("check", "--target", "openplc", str(tmp_path))
+    assert r.returncode == 0 and "clean" in r.stderr, r.stderr
 
 
 def test_duplicate_local_id_is_an_error(tmp_path):

@@ -139,7 +139,7 @@ class Line:
 @dataclass
 class BodyST:
     lines: list[Line]
-    decls: list[tuple[str, str, str]]                # (name, type, comment) of generated variables
+    decls: list[tuple[str, str, str, int | None]]    # (name, type, comment, localId) of generated variables
     networks: int
     warnings: list[tuple[str, Element]] = field(default_factory=list)
 
@@ -155,7 +155,7 @@ class Translator:
         self.language = language
         self.elems = elems
         self.by_id = {e.id: e for e in elems}
-        self.decls: list[tuple[str, str, str]] = []
+        self.decls: list[tuple[str, str, str, int | None]] = []
         self.names: dict[tuple, str] = {}
         self.connectors = {e.text.upper(): e for e in elems if e.kind == "connector"}
         self.labels = {e.text.upper(): e.text for e in elems if e.kind == "label"}
@@ -173,7 +173,7 @@ class Translator:
             n += 1
         self.ctx.taken.add(name.upper())
         self.names[key] = name
-        self.decls.append((name, type_text, comment))
+        self.decls.append((name, type_text, comment, key[1] if isinstance(key[1], int) else None))
         return name
 
     # --------------------------------------------------------------- value keys --
@@ -286,7 +286,9 @@ class Translator:
             m = CONVERSION.match(e.type_name)
             if m:
                 return Sig("STD", ret=m.group(2).upper(), inputs={"IN": ""}, outputs={"OUT": m.group(2).upper()})
-            raise GraphError(f"block type {e.type_name} is not a known function or function block", e.line, e.id)
+            # declared in an ST file of the same build (the compiler checks it): an instance name makes it
+            # a function block, otherwise a function
+            return Sig("FUNCTION_BLOCK" if e.instance else "FUNCTION")
         return s
 
     def is_fb(self, e: Element) -> bool:
@@ -299,7 +301,7 @@ class Translator:
             self.ctx.var_types[e.instance.upper()] = e.type_name
             if e.instance.upper() not in self.ctx.taken:
                 self.ctx.taken.add(e.instance.upper())
-                self.decls.append((e.instance, e.type_name, f"instance of block {e.id}"))
+                self.decls.append((e.instance, e.type_name, f"instance of block {e.id}", e.id))
         return e.instance
 
     def pure_function(self, e: Element) -> bool:

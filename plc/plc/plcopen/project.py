@@ -228,9 +228,10 @@ class ProjectReader:
                 unit.add(f"VAR (* generated from the {language} body: power flow shared by several elements, edge "
                          "detectors and block outputs, named after their localId *)", Origin(line_of(body), pou=name))
                 width = max(len(d[0]) for d in result.decls)
-                for dname, dtype, dcomment in result.decls:
-                    unit.add(f"    {dname.ljust(width)} : {dtype}; (* {comment(dcomment)} *)",
-                             Origin(line_of(body), pou=name))
+                for dname, dtype, dcomment, lid in result.decls:
+                    where = Origin(self.element_line(body, lid), pou=name, local_id=lid) if lid is not None \
+                        else Origin(line_of(body), pou=name)
+                    unit.add(f"    {dname.ljust(width)} : {dtype}; (* {comment(dcomment)} *)", where)
                 unit.add("END_VAR", Origin(line_of(body), pou=name))
             for ln in result.lines:
                 el_line = line_of(body)
