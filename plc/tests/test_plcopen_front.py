@@ -355,3 +355,47 @@ def test_written_files_validate_against_the_tc6_schema_when_it_is_given(tmp_path
     files = [tmp_path / "atc.xml", REPO / "st_src/app/FB_ChangerInterlocks.xml", *sorted(FIXTURES.glob("*.xml"))]
     for f in files:
         assert schema.validate(etree.parse(str(f))), (f, [str(e) for e in schema.error_log][:5])
+
+
+def test_plc_run_serves_a_ladder_program_from_xml(tmp_path):
+    """`plc run FILE.xml`: the LD coils on located outputs reach the Modbus coils (loopback, free port)."""
+    import signal
+    import socket
+    import time
+    from plc.host.modbus import ModbusClient
+    b = Body().left_rail(1, points=2).contact(2, "firstScan", 1).coil(3, "lamp", 2, storage="set") \
+        .coil(4, "firstScan", 3, x=400, storage="reset").coil(5, "done", 4, x=500, storage="set") \
+        .contact(6, "lamp", 1, y=40).coil(7, "echo", 6, y=40).right_rail(8, [5, 7])
+    main = pou("Main", "program", b, locals_=[("firstScan", "BOOL", "TRUE")])
+    located = ('<localVars><variable name="lamp" address="%QX0.0"><type><BOOL/></type></variable>'
+               '<variable name="done" address="%QX0.1"><type><BOOL/></type></variable>'
+               '<variable name="echo" address="%QX0.2"><type><BOOL/></type></variable></localVars>')
+    text = project([main.replace("</interface>", located + "</interface>")], config=CONFIG)
+    f = write(tmp_path, text, "lamp.xml")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    log = tmp_path / "run.log"
+    with open(log, "wb") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "plc.cli", "run", str(f), "--port", str(port), "--retain",
+                                 str(tmp_path / "r.retain"), "--build-dir", str(tmp_path / "build")],
+                                cwd=tmp_path, stdout=out, stderr=subprocess.STDOUT,
+                                env={**os.environ, "PYTHONPATH": str(REPO / "plc")})
+    try:
+        deadline = time.monotonic() + 180        # bounds a hang only (a cold runtime build)
+        while f"listening on 127.0.0.1:{port}" not in log.read_text(errors="replace"):
+            assert proc.poll() is None, log.read_text()[-3000:]
+            assert time.monotonic() < deadline, log.read_text()[-3000:]
+            time.sleep(0.1)
+        with ModbusClient("127.0.0.1", port, timeout=10) as client:
+            deadline = time.monotonic() + 60
+            while client.read_coils(0, 3) != [True, True, True]:
+                assert time.monotonic() < deadline, client.read_coils(0, 3)
+                time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
