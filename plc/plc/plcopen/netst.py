@@ -25,14 +25,16 @@ from .graph import RAILS, Element, GraphError, check_refs, networks, read_elemen
 ATOM, NOT_P, AND_P, OR_P, LOW = 10, 8, 5, 3, 0
 IDENT = re.compile(r"[A-Za-z_]\w*")
 SIMPLE = re.compile(r"^(?:[A-Za-z_][\w]*(?:\.[A-Za-z_]\w*|\[[^\]]*\])*|%[IQM][XBWDL]?[\d.]+|[\w#.+\-:']+)$")
-LITERAL = re.compile(r"^(?:TRUE|FALSE|[+-]?\d[\d_]*(?:\.\d+)?(?:[eE][+-]?\d+)?|[A-Za-z_]+#.+|'.*')$", re.I)
 CONVERSION = re.compile(r"^(\w+)_TO_(\w+)$", re.I)
-# result type rule by standard-function kind (plc/plc/stdfuncs.py): a type, or the pin whose type it takes
+# standard functions that are operators in ST (they cannot be called by name), with their precedence
 OPERATORS = {"AND": AND_P, "OR": OR_P, "XOR": 4, "NOT": NOT_P, "MOD": 7}
-STD_RESULT = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "STRING", "mid": "STRING",
-              "concat": "STRING", "insert": "STRING", "delete": "STRING", "replace": "STRING", "trunc": "DINT",
-              "num1": "IN", "real1": "IN", "arith": "IN1", "expt": "IN1", "move": "IN", "minmax": "IN1",
-              "limit": "IN", "sel": "IN0", "mux": "IN0", "shift": "IN", "logic": "IN1", "not": "IN"}
+# the result type of a standard function, by its kind in plc/plc/stdfuncs.py: a fixed type ...
+STD_RESULT_TYPE = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "STRING", "mid": "STRING",
+                   "concat": "STRING", "insert": "STRING", "delete": "STRING", "replace": "STRING", "trunc": "DINT"}
+# ... or the type of an input pin (of any other typed input when that one cannot be told)
+STD_RESULT_PIN = {"num1": "IN", "real1": "IN", "arith": "IN1", "expt": "IN1", "move": "IN", "minmax": "IN1",
+                  "limit": "IN", "sel": "IN0", "mux": "IN0", "shift": "IN", "logic": "IN1", "not": "IN"}
+SELECTORS = ("EN", "G", "K")
 
 
 @dataclass
@@ -382,10 +384,10 @@ class Translator:
         if pin in s.outputs and s.outputs[pin]:
             return s.outputs[pin]
         if s.kind == "STD":
-            rule = STD_RESULT.get(s.std_kind, "")
-            if rule and rule.upper() == rule and rule not in e.inputs and rule not in ("IN", "IN0", "IN1"):
-                return rule
-            for cand in [rule, *[p for p in e.inputs if p not in ("EN", "G", "K")]]:
+            if s.std_kind in STD_RESULT_TYPE:
+                return STD_RESULT_TYPE[s.std_kind]
+            first = STD_RESULT_PIN.get(s.std_kind, "")
+            for cand in [first, *[p for p in e.inputs if p not in SELECTORS]]:
                 if cand in e.inputs:
                     t = self.input_type(e, cand)
                     if t:

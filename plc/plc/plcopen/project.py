@@ -7,12 +7,11 @@ compiler reads them all as one text with a line map back into the XML.
 from __future__ import annotations
 
 import functools
-import re
 from dataclasses import dataclass, field
 
 from .datatypes import TypeError_, initial_value, type_text
 from .graph import GraphError
-from .netst import STD_RESULT, Context, Sig, translate_body
+from .netst import STD_RESULT_PIN, STD_RESULT_TYPE, Context, Sig, translate_body
 from .xmlfile import child, children, flag, line_of, local, path, text_of, text_start
 
 POU_KINDS = {"function": "FUNCTION", "functionBlock": "FUNCTION_BLOCK", "program": "PROGRAM"}
@@ -91,7 +90,7 @@ def standard_fb_sigs() -> dict[str, Sig]:
 def standard_function_sigs() -> dict[str, Sig]:
     from ..stdfuncs import STD_FUNCS
     return {name: Sig("STD", std_kind=f.kind, inputs={p: "" for p in f.params}, outputs={"OUT": ""})
-            for name, f in STD_FUNCS.items() if f.kind in STD_RESULT}
+            for name, f in STD_FUNCS.items() if f.kind in STD_RESULT_TYPE or f.kind in STD_RESULT_PIN}
 
 
 class ProjectReader:
