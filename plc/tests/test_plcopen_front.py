@@ -399,3 +399,13 @@ def test_plc_run_serves_a_ladder_program_from_xml(tmp_path):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(10)
+
+
+def test_every_broken_pou_of_a_file_is_reported_in_one_run(tmp_path):
+    bad1 = Body().left_rail(1).contact(2, "a", 42).coil(3, "q", 2)
+    bad2 = Body().left_rail(1).contact(2, "a", 1).coil(3, "q", 2, negated=True, storage="reset")
+    text = project([pou("FB_One", "functionBlock", bad1, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")]),
+                    pou("FB_Two", "functionBlock", bad2, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
+    r = plc("check", str(write(tmp_path, text)))
+    assert r.returncode == 1
+    assert "in FB_One, element localId 2" in r.stderr and "in FB_Two, element localId 3" in r.stderr, r.stderr

@@ -92,7 +92,7 @@ def translate(name: str, data: bytes, diags: Diagnostics) -> Translation | None:
     """The project in `data` as ST units; None (with an error in diags) when it cannot be read."""
     try:
         root = parse_bytes(data)
-        units, warnings = read_project(root, data)
+        units, errors, warnings = read_project(root, data)
     except XmlError as e:
         diags.error(Pos(name, e.line, e.col or 1), str(e))
         return None
@@ -104,4 +104,6 @@ def translate(name: str, data: bytes, diags: Diagnostics) -> Translation | None:
         return None
     for message, line, pou, local_id in warnings:
         diags.warning(Pos(name, line, 1), prefix(pou, local_id) + message)
-    return Translation(name, units)
+    for e in errors:
+        diags.error(Pos(name, e.line, 1), prefix(e.pou, e.local_id) + str(e))
+    return Translation(name, units) if not errors else None

@@ -103,6 +103,7 @@ class ProjectReader:
         self.type_names: set[str] = set()
         self.warnings: list[tuple[str, int, str, int | None]] = []    # message, XML line, POU, localId
         self.element_lines: dict[int, dict[str, int]] = {}              # body -> localId -> XML line
+        self.errors: list[ProjectError] = []
 
     # ----------------------------------------------------------------- project --
     def read(self) -> list[Unit]:
@@ -115,8 +116,12 @@ class ProjectReader:
             if path(self.root, "instances", "configurations") is not None else []
         for dt in data_types:
             self.type_names.add((dt.get("name") or "").upper())
-        for p in pous:
-            self.signature(p)
+        for p in list(pous):
+            try:
+                self.signature(p)
+            except ProjectError as e:
+                self.errors.append(e)
+                pous.remove(p)
         for c in configs:
             for holder in [c, *children(c, "resource")]:
                 for gv in children(holder, "globalVars"):
@@ -124,12 +129,13 @@ class ProjectReader:
                         t = child(v, "type")
                         if t is not None:
                             self.global_types[(v.get("name") or "").upper()] = self.safe_type(t, "")
-        for dt in data_types:
-            self.units.append(self.data_type(dt))
-        for p in pous:
-            self.units.append(self.pou(p))
-        for c in configs:
-            self.units.append(self.configuration(c))
+        # every declaration is read even after one failed, so one run reports every problem of the file
+        for reader, items in ((self.data_type, data_types), (self.pou, pous), (self.configuration, configs)):
+            for item in items:
+                try:
+                    self.units.append(reader(item))
+                except ProjectError as e:
+                    self.errors.append(e)
         return self.units
 
     def safe_type(self, holder, pou: str) -> str:
@@ -325,8 +331,10 @@ class ProjectReader:
         return unit
 
 
-def read_project(root, raw: bytes) -> tuple[list[Unit], list[tuple[str, int, str, int | None]]]:
-    """The units of the project and the warnings met on the way (message, XML line, POU, localId)."""
+def read_project(root, raw: bytes) -> tuple[list[Unit], list[ProjectError], list[tuple[str, int, str, int | None]]]:
+    """The units of the project, the errors (declarations that could not be read) and the warnings met on the
+    way (message, XML line, POU, localId)."""
     reader = ProjectReader(root, raw)
-    return reader.read(), reader.warnings
+    units = reader.read()
+    return units, reader.errors, reader.warnings
 
