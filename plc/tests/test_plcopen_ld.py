@@ -143,6 +143,15 @@ def test_parallel_coils_see_the_same_flow():
     KINDS_COVERED.add("parallel coils")
 
 
+def test_contact_after_a_coil_on_the_same_path_reads_the_new_value():
+    # a -> (S) x -> | x | -> ( y ): left to right, y sees x set in the same scan
+    b = Body().left_rail(1).contact(2, "a", 1).coil(3, "x", 2, storage="set") \
+        .contact(4, "x", 3, x=400).coil(5, "y", 4, x=500).right_rail(6, [5])
+    out, _ = scan(b, {"a": [False, True, False]}, ["x", "y"])
+    assert out["x"] == [False, True, True]
+    assert out["y"] == [False, True, False]
+
+
 def test_negated_set_coil_is_rejected_with_its_local_id():
     b = Body().left_rail(1).contact(2, "a", 1).coil(3, "q", 2, negated=True, storage="set").right_rail(4, [3])
     xml = project([pou("Uut", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
