@@ -5,26 +5,22 @@ used more than once (a contact feeding coils in series or in parallel, a block o
 blocks) goes into a temporary at its first use, so a coil that resets the variable of a contact does
 not change what the coils after it receive (OpenPLC Editor #836).
 
-Order of the networks: by `executionOrderId` when the editor wrote one (> 0) on every network;
-otherwise a network that writes a variable runs before the networks that read it (data-flow order),
-with top-to-bottom position only as the tie-break and to break cycles.  Labels split a body into
-parts kept in their drawn order; forward jumps skip the networks up to their label.  Inside a network
+The networks run in the order order.py gives them; forward jumps skip the networks up to their label.
+Inside a network
 the actions (coils, blocks, output variables, jump, return) run in data-flow order (execution order
 when every action has one), top-to-bottom as the tie-break; a block output read before its block runs
 (feedback) gives the value of the previous scan.
 """
 from __future__ import annotations
 
-import heapq
 import re
 from collections import Counter
 from dataclasses import dataclass, field
 
 from .graph import RAILS, Element, GraphError, check_refs, networks, read_elements
+from .order import comments_by_network, order_networks, topo
+from .stexpr import AND_P, ATOM, FALSE, NOT_P, OR_P, SIMPLE, TRUE, Ex, Line, and_, cat, expr_of, join, not_, or_, tag
 
-ATOM, NOT_P, AND_P, OR_P, LOW = 10, 8, 5, 3, 0
-IDENT = re.compile(r"[A-Za-z_]\w*")
-SIMPLE = re.compile(r"^(?:[A-Za-z_][\w]*(?:\.[A-Za-z_]\w*|\[[^\]]*\])*|%[IQM][XBWDL]?[\d.]+|[\w#.+\-:']+)$")
 CONVERSION = re.compile(r"^(\w+)_TO_(\w+)$", re.I)
 # standard functions that are operators in ST (they cannot be called by name), with their precedence
 OPERATORS = {"AND": AND_P, "OR": OR_P, "XOR": 4, "NOT": NOT_P, "MOD": 7}
@@ -35,75 +31,6 @@ STD_RESULT_TYPE = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "ST
 STD_RESULT_PIN = {"num1": "IN", "real1": "IN", "arith": "IN1", "expt": "IN1", "move": "IN", "minmax": "IN1",
                   "limit": "IN", "sel": "IN0", "mux": "IN0", "shift": "IN", "logic": "IN1", "not": "IN"}
 SELECTORS = ("EN", "G", "K")
-
-
-@dataclass
-class Ex:
-    """An ST expression, its precedence (ATOM binds tightest) and which element wrote which part of it
-    (spans of (start, end, localId), so a diagnostic inside the text finds its element)."""
-    text: str
-    prec: int = ATOM
-    stable: bool = False     # a constant, a temporary or an FB output: reading it twice reads the same value
-    spans: tuple = ()
-
-    def at(self, prec: int) -> "Ex":
-        if self.prec >= prec:
-            return self
-        return Ex(f"({self.text})", ATOM, self.stable, tuple((a + 1, b + 1, i) for a, b, i in self.spans))
-
-
-def cat(*parts, prec: int = ATOM, stable: bool = False) -> Ex:
-    """Strings and expressions joined into one expression, the spans shifted to their place."""
-    text, spans = "", []
-    for p in parts:
-        if isinstance(p, Ex):
-            spans += [(a + len(text), b + len(text), i) for a, b, i in p.spans]
-            text += p.text
-        else:
-            text += p
-    return Ex(text, prec, stable, tuple(spans))
-
-
-def tag(ex: Ex, local_id: int) -> Ex:
-    """The whole expression marked as written by element local_id."""
-    return Ex(ex.text, ex.prec, ex.stable, ex.spans + ((0, len(ex.text), local_id),))
-
-
-def join(sep: str, items: list) -> list:
-    out: list = []
-    for k, it in enumerate(items):
-        if k:
-            out.append(sep)
-        out.append(it)
-    return out
-
-
-TRUE = Ex("TRUE", ATOM, True)
-FALSE = Ex("FALSE", ATOM, True)
-
-
-def and_(a: Ex, b: Ex) -> Ex:
-    if a.text == "TRUE":
-        return b
-    if b.text == "TRUE":
-        return a
-    return cat(a.at(AND_P), " AND ", b.at(AND_P + 1), prec=AND_P)
-
-
-def or_(items: list[Ex]) -> Ex:
-    if any(i.text == "TRUE" for i in items):
-        return TRUE
-    if len(items) == 1:
-        return items[0]
-    return cat(*join(" OR ", [i.at(OR_P + 1) for i in items]), prec=OR_P)
-
-
-def not_(a: Ex) -> Ex:
-    if a.text == "TRUE":
-        return FALSE
-    if a.text == "FALSE":
-        return TRUE
-    return cat("NOT ", a.at(NOT_P), prec=NOT_P)
 
 
 @dataclass
@@ -127,18 +54,6 @@ class Context:
 
 
 @dataclass
-class Line:
-    text: str
-    local_id: int | None
-    spans: tuple = ()          # (start, end, localId) of the parts other elements wrote
-
-    @staticmethod
-    def of(local_id: int | None, *parts) -> "Line":
-        ex = cat(*parts)
-        return Line(ex.text, local_id, ex.spans)
-
-
-@dataclass
 class BodyST:
     lines: list[Line]
     decls: list[tuple[str, str, str, int | None]]    # (name, type, comment, localId) of generated variables
@@ -146,12 +61,10 @@ class BodyST:
     warnings: list[tuple[str, Element]] = field(default_factory=list)
 
 
-def expr_of(text: str) -> Ex:
-    text = text.strip()
-    return Ex(text, ATOM) if SIMPLE.match(text) else Ex(text, LOW)
-
-
 class Translator:
+    """One body: two passes over the actions of every network, the first counting how often each value is
+    read, the second writing the ST (a value read more than once gets a temporary)."""
+
     def __init__(self, elems: list[Element], ctx: Context, language: str):
         self.ctx = ctx
         self.language = language
@@ -622,7 +535,8 @@ class Translator:
                     self.reads[(r.source, r.pin)] += 1
         self.cyclic = self.blocks_in_cycles()
         nets = networks(self.elems)
-        ordered = self.order_networks(nets)
+        ordered = order_networks(self.elems, nets)
+        self.comments = comments_by_network(self.elems, nets)
         # pass 1 counts how often each value is read; pass 2 writes the ST
         self.counting, self.counts, self.temps, self.temp_needed = True, Counter(), {}, set()
         self.in_progress: set = set()
@@ -692,92 +606,6 @@ class Translator:
             text += ": " + " / ".join(n.replace("(*", "( *").replace("*)", "* )") for n in notes)
         return text
 
-    def order_networks(self, nets: list[list[Element]]) -> list:
-        """Networks and labels in execution order (labels are Elements, networks lists)."""
-        labels = sorted((e for e in self.elems if e.kind == "label"), key=lambda e: (e.order or 0, e.key()))
-        comments = [e for e in self.elems if e.kind == "comment"]
-        self.comments: dict[int, list[Element]] = {}
-        for c in comments:
-            below = [n for n in nets if min(e.y for e in n) >= c.y]
-            if below:
-                target = min(below, key=lambda n: (min(e.y for e in n), min(e.x for e in n)))
-                self.comments.setdefault(id(target), []).append(c)
-        all_ordered = nets and all(any(e.order > 0 for e in n) for n in nets) and all(lb.order > 0 for lb in labels)
-
-        def first_order(n):
-            return min(e.order for e in n if e.order > 0)
-
-        parts: list[list[list[Element]]] = [[] for _ in range(len(labels) + 1)]
-        for n in nets:
-            idx = 0
-            for k, lb in enumerate(labels):
-                if (first_order(n) > lb.order) if all_ordered else (min(e.y for e in n) >= lb.y):
-                    idx = k + 1
-            parts[idx].append(n)
-        out: list = []
-        for k, part in enumerate(parts):
-            if k > 0:
-                out.append(labels[k - 1])
-            if all_ordered:
-                out.extend(sorted(part, key=first_order))
-            else:
-                out.extend(self.dataflow_order(part))
-        return out
-
-    def dataflow_order(self, part: list[list[Element]]) -> list[list[Element]]:
-        writes, reads = [], []
-        for n in part:
-            w, r = set(), set()
-            for e in n:
-                if e.kind == "coil" or e.kind in ("outVariable", "inOutVariable"):
-                    m = IDENT.match(e.text)
-                    if m:
-                        w.add(m.group(0).upper())
-                if e.kind == "block" and e.instance:
-                    w.add(e.instance.upper())
-                if e.kind in ("contact", "inVariable", "inOutVariable"):
-                    r.update(t.upper() for t in IDENT.findall(e.text))
-            writes.append(w)
-            reads.append(r)
-        writers: dict[str, set[int]] = {}
-        for j, w in enumerate(writes):
-            for name in w:
-                writers.setdefault(name, set()).add(j)
-        deps = {i: set().union(*(writers.get(name, set()) for name in reads[i])) - {i} for i in range(len(part))}
-        keyed = [(i, n) for i, n in enumerate(part)]
-        order = topo(keyed, {i: deps[i] for i, _ in keyed},
-                     lambda item: (min(e.y for e in item[1]), min(e.x for e in item[1]), min(e.id for e in item[1])),
-                     ident=lambda item: item[0])
-        return [n for _i, n in order]
-
-
-def topo(items: list, deps: dict, key, ident=lambda a: a.id) -> list:
-    """Kahn's algorithm: among ready items the smallest key first; a cycle is broken at its smallest key."""
-    by_id = {ident(a): a for a in items}
-    keys = {i: key(a) for i, a in by_id.items()}
-    pending = {i: {d for d in deps[i] if d in by_id and d != i} for i in by_id}
-    successors: dict = {i: [] for i in by_id}
-    for i, ds in pending.items():
-        for d in ds:
-            successors[d].append(i)
-    ready = [(keys[i], i) for i, ds in pending.items() if not ds]
-    heapq.heapify(ready)
-    remaining = set(by_id)
-    out = []
-    while remaining:
-        if not ready:                        # a cycle: start it at its smallest key
-            i = min(remaining, key=lambda n: (keys[n], n))
-            heapq.heappush(ready, (keys[i], i))
-        _k, i = heapq.heappop(ready)
-        if i not in remaining:
-            continue
-        remaining.discard(i)
-        out.append(by_id[i])
-        for nxt in successors[i]:
-            pending[nxt].discard(i)
-            if not pending[nxt] and nxt in remaining:
-                heapq.heappush(ready, (keys[nxt], nxt))
-    return out
 
 
 def translate_body(body, ctx: Context, language: str) -> BodyST:
