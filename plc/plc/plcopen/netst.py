@@ -6,10 +6,9 @@ blocks) goes into a temporary at its first use, so a coil that resets the variab
 not change what the coils after it receive (OpenPLC Editor #836).
 
 The networks run in the order order.py gives them; forward jumps skip the networks up to their label.
-Inside a network
-the actions (coils, blocks, output variables, jump, return) run in data-flow order (execution order
-when every action has one), top-to-bottom as the tie-break; a block output read before its block runs
-(feedback) gives the value of the previous scan.
+Inside a network the actions (coils, blocks, output variables, jump, return) run in data-flow order
+(execution order when every action has one), top-to-bottom as the tie-break; a block output read
+before its block runs (feedback) gives the value of the previous scan.
 """
 from __future__ import annotations
 
