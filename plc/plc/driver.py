@@ -192,6 +192,7 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
                         f"the first is {prog.configs[0].name} at {prog.configs[0].decl.pos}")
     for tr in translations:
         tr.remap(diags)
+        tr.remap_tree(result.files)
     if generate and not diags.has_errors():
         result.c_text = gen_c(prog, test_build=test_build)
     return result

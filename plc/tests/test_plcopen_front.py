@@ -409,3 +409,17 @@ def test_every_broken_pou_of_a_file_is_reported_in_one_run(tmp_path):
     r = plc("check", str(write(tmp_path, text)))
     assert r.returncode == 1
     assert "in FB_One, element localId 2" in r.stderr and "in FB_Two, element localId 3" in r.stderr, r.stderr
+
+
+def test_a_runtime_fault_in_an_fbd_block_names_the_xml_line(tmp_path):
+    b = Body("FBD").in_var(1, "a").in_var(2, "b", y=40).block(3, "DIV", {"IN1": 1, "IN2": 2}, ["OUT"]) \
+        .out_var(4, "q", (3, "OUT"))
+    main = pou("Main", "program", b, locals_=[("a", "INT", "7"), ("b", "INT", "0"), ("q", "INT")])
+    text = project([main], config=CONFIG)
+    f = write(tmp_path, text, "div.xml")
+    res = compile_sources([f])
+    assert res.ok
+    block_line = line_of(text, '<block localId="3"')
+    assert f'div.xml", {block_line},' in res.c_text        # the site table names the XML file and line
+    run = run_c(res.c_text, 1)
+    assert run.fault is not None and run.fault.line == block_line

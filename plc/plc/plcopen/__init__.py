@@ -5,16 +5,19 @@ The interface to the rest of the toolchain is small on purpose:
     looks_like_plcopen(path)            is this file a PLCopen project?
     translate(name, data, diags)        -> Translation: the project as ST text with a line map, or None
     Translation.remap(diags)            point the diagnostics of the ST text back into the XML
+    Translation.remap_tree(files)       the same for the positions of the parsed ST (before code generation)
 
 Types, POUs (ST bodies as written, LD and FBD bodies translated, docs/ladder.md), global variables
 and the configuration become ST; the compiler proper never sees XML.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import ast as A
 from ..diagnostics import Diagnostics, Pos
 from .datatypes import TypeError_
 from .project import Origin, ProjectError, Unit, read_project
@@ -74,10 +77,34 @@ class Translation:
         return Pos(self.xml_name, line, 1), prefix(o.pou, local_id)
 
     def remap(self, diags: Diagnostics) -> None:
+        """Diagnostics on the generated ST: XML file, line (and column for ST bodies), POU and localId."""
         for d in diags.items:
             if d.pos.file == self.st_name:
                 d.pos, pre = self.where(d.pos)
                 d.message = pre + d.message
+
+    def remap_tree(self, files: list) -> None:
+        """Every source position of the parsed ST text moved into the XML, so what the generated C reports
+        (fault records, assertion sites, test locations) names the XML file and line."""
+        for f in files:
+            if getattr(f, "path", None) == self.st_name:
+                self._move(f, set())
+
+    def _move(self, node, seen: set) -> None:
+        if isinstance(node, (list, tuple)):
+            for item in node:
+                self._move(item, seen)
+            return
+        if not isinstance(node, A.Node) or id(node) in seen:
+            return
+        seen.add(id(node))
+        for f in dataclasses.fields(node):
+            value = getattr(node, f.name)
+            if isinstance(value, Pos):
+                if value.file == self.st_name:
+                    setattr(node, f.name, self.where(value)[0])
+            else:
+                self._move(value, seen)
 
 
 def prefix(pou: str, local_id: int | None) -> str:
