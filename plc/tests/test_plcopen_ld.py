@@ -309,6 +309,32 @@ def test_fbd_in_out_variable():
     KINDS_COVERED.add("inOutVariable")
 
 
+def test_fbd_edge_on_a_block_input_pin():
+    b = Body("FBD").in_var(1, "a").block(2, "MOVE", {"IN": 1}, ["OUT"], edge_in={"IN": "rising"}) \
+        .out_var(3, "q", (2, "OUT"))
+    out, st = scan(b, {"a": [False, True, True, False, True]}, ["q"])
+    assert out["q"] == [False, True, False, False, True]
+    assert "rise2In(CLK := a);" in st
+    KINDS_COVERED.add("edge on a block input pin")
+
+
+def test_fbd_negated_input_and_output_variables():
+    b = Body("FBD").in_var(1, "a", negated=True).out_var(2, "q", 1, negated=True) \
+        .in_var(3, "a", y=40).out_var(4, "r", 3, y=40, negated=True)
+    out, _ = scan(b, {"a": [False, True]}, ["q", "r"])
+    assert out["q"] == [False, True] and out["r"] == [True, False]
+    KINDS_COVERED.update({"inVariable negated", "outVariable negated"})
+
+
+def test_set_coil_on_a_rising_edge():
+    b = Body().left_rail(1, points=2).contact(2, "a", 1).coil(3, "q", 2, storage="set", edge="rising") \
+        .contact(4, "r", 1, y=40).coil(5, "q", 4, y=40, storage="reset").right_rail(6, [3, 5])
+    # a held high does not set q again after the reset: only its rising edge does
+    out, _ = scan(b, {"a": [True, True, True, False, True], "r": [False, False, True, False, False]}, ["q"])
+    assert out["q"] == [True, True, False, False, True]
+    KINDS_COVERED.add("coil set on an edge")
+
+
 def test_fbd_execution_order_ids_order_the_blocks():
     # two outVariables in one network, both fed by one block; Beremiz writes executionOrderId on each
     b = Body("FBD").in_var(1, "a", order=0).block(2, "MOVE", {"IN": 1}, ["OUT"], order=1) \
@@ -324,4 +350,4 @@ def test_element_kinds_covered_is_reported():
     # runs last in this file (pytest keeps file order): the figure for the closing note
     print(f"\nLD/FBD element kinds and modifiers covered by scan tests: {len(KINDS_COVERED)}: "
           f"{', '.join(sorted(KINDS_COVERED))}")
-    assert len(KINDS_COVERED) >= 30
+    assert len(KINDS_COVERED) >= 40
