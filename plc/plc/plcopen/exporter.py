@@ -82,6 +82,19 @@ class Source:
         m = re.search(r";\s*\(\*(.*?)\*\)\s*$", line)
         return m.group(1).strip() if m else ""
 
+    def leading_comment(self, pos) -> str:
+        """The (* comment *) written right above the declaration at pos (only blank space between)."""
+        before = self.text[:self.starts[pos.line - 1]].rstrip()
+        if not before.endswith("*)"):
+            return ""
+        start = before.rfind("(*")
+        if start < 0 or "*)" in before[start:-2]:
+            return ""
+        line_start = before.rfind("\n", 0, start) + 1
+        if before[line_start:start].strip():      # the comment ends a line of code: not this declaration's
+            return ""
+        return _unindent(before[start + 2:-2])
+
     def body(self, pou: A.Pou) -> str:
         """The statements of a POU as written: after its last END_VAR (or its header line) up to END_<kind>."""
         start = self.offset(pou.pos)
@@ -94,6 +107,13 @@ class Source:
             nl = self.text.find("\n", start, end)
             after = nl + 1 if nl >= 0 else end
         return self.text[after:end].strip("\n") + "\n"
+
+
+def _unindent(text: str) -> str:
+    lines = text.strip("\n").split("\n")
+    first, rest = lines[0].strip(), [ln for ln in lines[1:]]
+    margin = min((len(ln) - len(ln.lstrip()) for ln in rest if ln.strip()), default=0)
+    return "\n".join([first, *(ln[margin:] for ln in rest)]).strip()
 
 
 def expr_text(e) -> str:
@@ -205,12 +225,14 @@ def export(paths: list[str], diags: Diagnostics) -> bytes | None:
     for src, tree in parsed:
         for item in tree.items:
             if isinstance(item, A.TypeBlock):
-                for td in item.decls:
+                for k, td in enumerate(item.decls):
                     dt = E("dataType", data_types, name=td.text or td.name)
                     type_xml(td.spec, E("baseType", dt), src)
                     init = src.decl_init(td.pos) if td.init is not None else None
                     if init:
                         E("simpleValue", E("initialValue", dt), value=init)
+                    if k == 0:
+                        documentation(dt, src.leading_comment(item.pos))
             elif isinstance(item, A.Pou):
                 p = E("pou", pous, name=item.text or item.name, pouType=POU_TYPE[item.kind])
                 iface = E("interface", p)
@@ -221,6 +243,7 @@ def export(paths: list[str], diags: Diagnostics) -> bytes | None:
                     p.remove(iface)
                 xp = etree.SubElement(E("ST", E("body", p)), f"{{{XHTML}}}p")
                 xp.text = etree.CDATA(src.body(item))
+                documentation(p, src.leading_comment(item.pos))
             elif isinstance(item, A.Configuration):
                 configs.append((src, item))
             else:
