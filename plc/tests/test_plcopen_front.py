@@ -99,8 +99,7 @@ def test_an_error_in_an_st_body_points_at_its_xml_line_and_column(tmp_path):
     res = compile_sources([f], generate=False)
     err = res.diags.errors[0]
     cdata_line = line_of(text, "<![CDATA[")
-    assert err.pos == Pos(str(f.relative_to(Path.cwd())) if f.is_relative_to(Path.cwd()) else err.pos.file,
-                          cdata_line + 1, 12)
+    assert err.pos.file.endswith("p.xml") and (err.pos.line, err.pos.col) == (cdata_line + 1, 12)
     assert err.message.startswith("in FB_St: ")
     rendered = err.render(res.sources)
     assert "q := a AND ;" in rendered          # the XML line is shown under the message
