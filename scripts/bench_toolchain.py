@@ -3,6 +3,8 @@
 - plc check of a generated 2,000-line ST file (target <= 0.5 s)
 - compiling st_src/ + iec_tests/ into the test binary, cold (target <= 10 s)
 - 200 tests x 10,000 scans each through plc test's runner (target <= 5 s wall)
+- plc check of a 500-rung ladder (PLCopen XML, OpenPLC Editor grid rails) against plc check of the ST it
+  imports to (baseline, same run): the XML front end's cost (target <= 3x the ST check)
 """
 from __future__ import annotations
 
@@ -16,7 +18,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "plc"))
 
+sys.path.insert(0, str(ROOT / "plc" / "tests"))
+
+from plc.diagnostics import Diagnostics  # noqa: E402
 from plc.driver import compile_sources  # noqa: E402
+from plc.plcopen import translate  # noqa: E402
+from plc.plcopen.importer import unit_files  # noqa: E402
+from plcopen_build import Body, pou, project  # noqa: E402
 from plc.testrunner import build_tests, collect_tests  # noqa: E402
 
 
@@ -139,6 +147,54 @@ END_FUNCTION_BLOCK
     return run_s, build_s, n
 
 
+def big_ladder(rungs: int) -> str:
+    """A PROGRAM of `rungs` rungs on one pair of grid rails: seal-in circuits, edges, set/reset, timers."""
+    b = Body().left_rail(1, points=rungs)
+    names = []
+    for k in range(rungs):
+        y, base = 40 * k, 100 + 10 * k
+        kind = k % 4
+        if kind == 0:      # start/stop seal-in
+            b.contact(base, f"start{k}", 1, y=y).contact(base + 1, f"run{k}", 1, y=y + 20)
+            b.contact(base + 2, f"stop{k}", [base, base + 1], x=200, y=y, negated=True)
+            b.coil(base + 3, f"run{k}", base + 2, y=y)
+        elif kind == 1:    # edge -> set, reset
+            b.contact(base, f"start{k}", 1, y=y, edge="rising").coil(base + 1, f"run{k}", base, y=y, storage="set")
+            b.coil(base + 2, f"stop{k}", base + 1, x=400, y=y, storage="reset")
+        elif kind == 2:    # timer in the rung
+            b.contact(base, f"start{k}", 1, y=y).in_var(base + 1, "T#50ms", y=y + 20)
+            b.block(base + 2, "TON", {"IN": base, "PT": base + 1}, ["Q", "ET"], y=y, instance=f"delay{k}")
+            b.coil(base + 3, f"run{k}", (base + 2, "Q"), y=y)
+        else:              # series coils (the #836 shape)
+            b.contact(base, f"start{k}", 1, y=y).coil(base + 1, f"run{k}", base, y=y, storage="set")
+            b.coil(base + 2, f"start{k}", base + 1, x=400, y=y, storage="reset")
+            b.coil(base + 3, f"stop{k}", base + 2, x=500, y=y)
+        names += [(f"start{k}", "BOOL"), (f"stop{k}", "BOOL"), (f"run{k}", "BOOL")]
+        if kind == 2:
+            names.append((f"delay{k}", "TON"))
+    return project([pou("BigLadder", "program", b, locals_=names)])
+
+
+def bench_ladder(tmp: Path) -> tuple[float, float, int]:
+    xml = tmp / "ladder.xml"
+    text = big_ladder(500)
+    xml.write_text(text)
+    diags = Diagnostics()
+    tr = translate(str(xml), text.encode(), diags)
+    st_dir = tmp / "ladder_st"
+    st_dir.mkdir()
+    for name, body in unit_files(tr).items():
+        (st_dir / name).write_text(body)
+    times = {"xml": [], "st": []}
+    for _ in range(5):
+        for key, path in (("xml", xml), ("st", st_dir)):
+            t0 = time.perf_counter()
+            res = compile_sources([path], generate=False)
+            times[key].append(time.perf_counter() - t0)
+            assert not res.diags.has_errors(), [d.render() for d in res.diags.errors][:3]
+    return statistics.median(times["xml"]), statistics.median(times["st"]), 500
+
+
 def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as d:
@@ -151,6 +207,10 @@ def main() -> int:
         run_s, build_s, n = bench_scans(tmp)
         rows.append(("plc test runner", f"{n} tests x 10,000 scans", f"{run_s:.2f} s", "<= 5 s", run_s <= 5))
         rows.append(("  (its build)", "ST -> C -> gcc -O1", f"{build_s:.2f} s", "", True))
+        xml_s, st_s, rungs = bench_ladder(tmp)
+        rows.append(("plc check, ladder as PLCopen XML", f"{rungs} rungs", f"{xml_s:.3f} s",
+                     f"<= 3x baseline ({xml_s / st_s:.1f}x)", xml_s <= 3 * st_s))
+        rows.append(("  baseline: the same, imported ST", f"{rungs} rungs", f"{st_s:.3f} s", "", True))
     w = [max(len(str(r[i])) for r in rows + [("benchmark", "size", "measured", "target", "")]) for i in range(4)]
     head = ("benchmark", "size", "measured", "target")
     print("  ".join(h.ljust(w[i]) for i, h in enumerate(head)) + "  ok")

@@ -120,7 +120,7 @@ def cmd_retain_show(args) -> int:
 
 
 def add_compile_opts(p: argparse.ArgumentParser) -> None:
-    p.add_argument("paths", nargs="+", metavar="PATH", help=".st files or directories (searched recursively)")
+    p.add_argument("paths", nargs="+", metavar="PATH", help=".st files, PLCopen .xml projects or directories (searched recursively)")
     p.add_argument("--no-portability", action="store_true", help="do not warn about constructs MATIEC rejects")
     p.add_argument("--target", choices=["openplc"], help="also check what this deploy target requires")
     p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
@@ -167,11 +167,14 @@ def parser() -> argparse.ArgumentParser:
     sub.add_parser("host", help="CNC host client: plc host \"T5 M6\" (plc host --help)", add_help=False)
     sub.add_parser("deploy", help="bundle for OpenPLC (plc deploy openplc), install and upgrade our soft-PLC as a "
                    "systemd service (plc deploy service|upgrade|rollback)", add_help=False)
+    sub.add_parser("import", help="PLCopen XML to ST files: plc import plcopen FILE.xml --out DIR", add_help=False)
+    sub.add_parser("export", help="ST project to PLCopen XML: plc export plcopen --out FILE.xml", add_help=False)
     return ap
 
 
 # Subcommands with their own argument parsers (each module has main(argv) -> int).
-DELEGATED = {"seq": ".seq.cli", "map": ".map.cli", "host": ".host.cli", "deploy": ".deploy"}
+DELEGATED = {"seq": ".seq.cli", "map": ".map.cli", "host": ".host.cli", "deploy": ".deploy",
+             "import": ".plcopen.importer", "export": ".plcopen.exporter"}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""`plc deploy openplc --out FILE.st`: the whole application as one ST file for an OpenPLC runtime upload.
+"""`plc deploy openplc --out FILE.st`: the whole application (ST and PLCopen XML sources) as one ST file for an OpenPLC runtime upload.
 
 OpenPLC compiles one uploaded .st file with its MATIEC (`iec2c -f -l -p -r -R -a`) against its own library,
 so the file holds everything of st_src/ (the library, the generated tables, the application and the
@@ -18,8 +18,8 @@ from pathlib import Path
 
 from . import ast as A
 from . import service
-from .diagnostics import Diagnostics
-from .driver import collect_files, compile_sources, display_name, read_source
+from .diagnostics import Diagnostics, SourceSet
+from .driver import collect_files, compile_sources, display_name, load_user_file
 from .parser import parse
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
@@ -126,9 +126,17 @@ def bundle(src_dirs: list[Path], diags: Diagnostics) -> tuple[str, list[str]]:
     items: list[Item] = []
     names: list[str] = []
     for path in files:
-        name = display_name(path)
-        names.append(name)
-        items.extend(split_items(name, read_source(path), diags))
+        names.append(display_name(path))
+        name, text, tr = load_user_file(path, diags, SourceSet())
+        if text is None:
+            continue
+        found = split_items(name, text, diags)
+        if tr is not None:          # a PLCopen project: name the XML line the declaration comes from
+            for it in found:
+                o = tr.origin(int(it.origin.rsplit(":", 1)[1]))
+                it.origin = f"{tr.xml_name}:{o.line}" if o is not None else tr.xml_name
+            tr.remap(diags)
+        items.extend(found)
     ordered = order(items)
     configs = [it for it in ordered if it.kind == "CONFIGURATION"]
     if len(configs) != 1:

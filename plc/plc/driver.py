@@ -48,14 +48,25 @@ class CompileResult:
         return not self.diags.has_errors()
 
 
+def is_source(path: Path) -> bool:
+    """A source file the compiler reads: ST, or a PLCopen XML project."""
+    from .plcopen import looks_like_plcopen
+    return path.suffix.lower() == ".st" or looks_like_plcopen(path)
+
+
 def collect_files(paths: list[str | os.PathLike]) -> list[Path]:
-    """The .st files named by `paths` (directories are searched recursively, in sorted order)."""
+    """The .st files and PLCopen .xml projects named by `paths` (directories are searched recursively, in
+    sorted order; an .xml file that is not a PLCopen project is skipped there)."""
     out: list[Path] = []
     for p in paths:
         path = Path(p)
         if path.is_dir():
-            out.extend(sorted(q for q in path.rglob("*.st") if q.is_file()))
+            out.extend(sorted(q for q in path.rglob("*") if q.suffix.lower() in (".st", ".xml") and q.is_file()
+                              and is_source(q)))
         elif path.is_file():
+            if path.suffix.lower() == ".xml" and not is_source(path):
+                raise UserError(f"{p}: not a PLCopen TC6 XML project (namespace "
+                                "http://www.plcopen.org/xml/tc6_0201 not found)")
             out.append(path)
         else:
             raise UserError(f"{p}: no such file or directory")
@@ -76,15 +87,38 @@ def display_name(path: Path) -> str:
         return str(path)
 
 
-def read_source(path: Path) -> str:
+def read_bytes(path: Path) -> bytes:
     try:
-        data = path.read_bytes()
+        return path.read_bytes()
     except OSError as e:
         raise UserError(f"{path}: {e.strerror}") from None
+
+
+def decode(data: bytes) -> str:
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
         return data.decode("latin-1")
+
+
+def read_source(path: Path) -> str:
+    return decode(read_bytes(path))
+
+
+def load_user_file(path: Path, diags: Diagnostics, sources: SourceSet):
+    """(name, ST text, translation or None) of one source file.  A PLCopen project becomes ST through
+    the XML front end (plc/plc/plcopen); its XML text is kept in `sources` for rendering diagnostics,
+    which `translation.remap(diags)` points back into the XML.  The text is None when it cannot be read."""
+    name = display_name(path)
+    if path.suffix.lower() != ".xml":
+        return name, read_source(path), None
+    from . import plcopen
+    data = read_bytes(path)
+    sources.add(name, decode(data))
+    tr = plcopen.translate(name, data, diags)
+    if tr is None:
+        return name, None, None
+    return tr.st_name, tr.text, tr
 
 
 def builtin_files(test_build: bool) -> list[Path]:
@@ -124,18 +158,23 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
     result = CompileResult(diags, sources)
     builtins = set()
     inputs: list[tuple[str, str]] = []
-    user_files = collect_files(paths)
+    user_inputs: list[tuple[str, str]] = []
+    translations = []
+    for f in collect_files(paths):
+        name, text, tr = load_user_file(f, diags, sources)
+        if text is not None:
+            user_inputs.append((name, text))
+        if tr is not None:
+            translations.append(tr)
+    user_inputs.extend(extra_texts or [])
     if test_build == "auto":
         # checking tests: load the test library when a file declares a TEST_ function block
-        test_build = any(TEST_DECL.search(read_source(f)) for f in user_files)
+        test_build = any(TEST_DECL.search(text) for _name, text in user_inputs)
     for f in builtin_files(test_build):
         name = f"<plc>/{f.name}" if f.parent == STDLIB else f"<plc>/testing/{f.name}"
         builtins.add(name)
         inputs.append((name, read_source(f)))
-    for f in user_files:
-        inputs.append((display_name(f), read_source(f)))
-    for name, text in extra_texts or []:
-        inputs.append((name, text))
+    inputs.extend(user_inputs)
     for name, text in inputs:
         sources.add(name, text)
         result.files.append(parse(text, name, diags))
@@ -151,6 +190,9 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
         for c in prog.configs[1:]:
             diags.error(c.decl.pos, "only one CONFIGURATION per build",
                         f"the first is {prog.configs[0].name} at {prog.configs[0].decl.pos}")
+    for tr in translations:
+        tr.remap(diags)
+        tr.remap_tree(result.files)
     if generate and not diags.has_errors():
         result.c_text = gen_c(prog, test_build=test_build)
     return result

@@ -58,9 +58,9 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
             elif isinstance(item, A.TypeBlock):
                 for td in item.decls:
                     pou_name(td.name, td.text, td.pos, "TYPE", lib, diags)
-                    target = prog.types.get(td.spec.name) if isinstance(td.spec, A.TypeRef) else None
-                    if isinstance(target, (EnumType, StructType)):
-                        kind = "an enumeration" if isinstance(target, EnumType) else "a STRUCT"
+                    aliased = prog.types.get(td.spec.name) if isinstance(td.spec, A.TypeRef) else None
+                    if isinstance(aliased, (EnumType, StructType)):
+                        kind = "an enumeration" if isinstance(aliased, EnumType) else "a STRUCT"
                         diags.portable(td.pos, f"TYPE {td.text} renames {kind} ({td.spec.text or td.spec.name}): "
                                        "MATIEC's C output does not compile", f"use {td.spec.text or td.spec.name} itself",
                                        code="portability.type-alias")

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from plc import ast as A
-from plc import deploy
+from plc import deploy, plcopen
 from plc.diagnostics import Diagnostics
 from plc.driver import compile_sources
 from plc.parser import parse
@@ -45,10 +45,16 @@ def test_the_bundle_holds_every_pou_and_type_of_st_src_once_and_no_test_code(bun
                     names.append(item.name)
         return names
     sources = [parse(p.read_text(), str(p), Diagnostics()) for p in sorted((REPO / "st_src").rglob("*.st"))]
+    ladder = sorted((REPO / "st_src").rglob("*.xml"))
+    assert ladder, "st_src/ holds the ladder interlocks as a PLCopen file"
+    for p in ladder:       # PLCopen sources (the ladder interlocks) travel as their ST translation
+        tr = plcopen.translate(str(p), p.read_bytes(), Diagnostics())
+        sources.append(parse(tr.text, str(p), Diagnostics()))
     got = declared([parse(bundle.read_text(), "bundle", Diagnostics())])
     assert sorted(got) == sorted(declared(sources))
     assert not any(n.startswith("TEST_") or n.startswith("ASSERT") for n in got)
     assert got.count("CONFIG0") == 1 and re.search(r"RESOURCE Res0 ON PLC", bundle.read_text())
+    assert "FB_CHANGERINTERLOCKS" in got
 
 
 def test_types_come_first_each_after_the_types_it_uses(bundle):

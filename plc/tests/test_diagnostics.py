@@ -331,6 +331,12 @@ def test_configuration_and_resource_names_for_openplc():
     assert pw(src.replace("Cell", "Config0").replace("Cpu", "Res0"), target="openplc") == []
 
 
+def test_configuration_names_are_checked_after_a_type_declaration_too():
+    # regression: a TYPE before the CONFIGURATION used to switch the openplc check off
+    src = "TYPE\n    Count : INT;\nEND_TYPE\n" + prog(OK_DECLS, "x := 1;") + CELL
+    assert [c for c, _l, _col in pw(src, target="openplc")] == ["portability.openplc-names"] * 2
+
+
 def test_var_block_mixing_located_and_unlocated_variables():
     assert pw(prog("VAR\n    out AT %QW0 : INT;\n    x : INT;\nEND_VAR", "x := 1;")) == \
         [("portability.mixed-located", 2, 1)]
