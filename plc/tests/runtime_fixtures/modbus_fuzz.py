@@ -11,7 +11,6 @@ sanitizer reports.
 from __future__ import annotations
 
 import json
-import os
 import socket
 import struct
 import subprocess
@@ -104,15 +103,7 @@ def replay(port: int, entry: CorpusEntry, timeout: float = 10.0) -> str | None:
 
 
 def mbfuzz_binary() -> Path:
-    src = h.FIXTURES / "mbfuzz.c"
-    h.CACHE.mkdir(parents=True, exist_ok=True)
-    out = h.CACHE / f"mbfuzz-{int(src.stat().st_mtime_ns)}"
-    if not out.exists():
-        tmp = out.with_suffix(f".{os.getpid()}")
-        subprocess.run(["gcc", "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", str(src), "-o", str(tmp),
-                        "-lpthread"], check=True)
-        os.replace(tmp, out)
-    return out
+    return h.tool_binary("mbfuzz")
 
 
 @dataclass

@@ -55,17 +55,23 @@ def runtime_binary(program_c: Path = BASIC, **defines: object) -> Path:
     return build_runtime(program_c, CACHE, sanitize=SANITIZE)
 
 
-def mbload_binary() -> Path:
-    """The load client (plain sockets, no sanitizer: it is the tester, not the tested)."""
-    src = FIXTURES / "mbload.c"
+def tool_binary(name: str) -> Path:
+    """A test client of runtime_fixtures/NAME.c (mbload, mbfuzz, mbhostile), built once per source version
+    (plain sockets, no sanitizer: it is the tester, not the tested)."""
+    src = FIXTURES / f"{name}.c"
     CACHE.mkdir(parents=True, exist_ok=True)
-    out = CACHE / f"mbload-{int(src.stat().st_mtime_ns)}"
+    out = CACHE / f"{name}-{int(src.stat().st_mtime_ns)}"
     if not out.exists():
         tmp = out.with_suffix(f".{os.getpid()}")
         subprocess.run(["gcc", "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", str(src), "-o", str(tmp),
                         "-lpthread"], check=True)
         os.replace(tmp, out)
     return out
+
+
+def mbload_binary() -> Path:
+    """The load client."""
+    return tool_binary("mbload")
 
 
 def wait_until(predicate: Callable[[], object], timeout: float, what: str, step: float = 0.01):
