@@ -215,12 +215,38 @@ def test_return_ends_the_body():
     KINDS_COVERED.add("return")
 
 
-def test_backward_jump_is_refused():
-    b = Body().left_rail(1).label(2, "Top", y=0).contact(3, "a", 1, y=40).jump(4, "Top", 3, y=40)
-    xml = project([pou("Uut", "functionBlock", b, inputs=[("a", "BOOL")])])
-    diags = Diagnostics()
-    assert translate("bad.xml", xml.encode(), diags) is None
-    assert "jump back" in diags.errors[0].message and "localId 4" in diags.errors[0].message
+def test_backward_jump_loops_within_the_scan_until_its_condition_falls():
+    # n := 0; Top: n := n + 1 (EN from the rail); n < limit -> jump Top; done := TRUE after the loop
+    b = Body().left_rail(1, points=3) \
+        .in_var(2, "INT#0", y=0).out_var(3, "n", 2, y=0) \
+        .label(4, "Top", y=40) \
+        .in_var(5, "n", y=80).in_var(6, "INT#1", y=100) \
+        .block(7, "ADD", {"EN": 1, "IN1": 5, "IN2": 6}, ["ENO", "OUT"], y=80) \
+        .out_var(8, "n", (7, "OUT"), y=80) \
+        .in_var(9, "n", y=140).in_var(10, "limit", y=160) \
+        .block(11, "LT", {"IN1": 9, "IN2": 10}, ["OUT"], y=140) \
+        .jump(12, "Top", (11, "OUT"), y=140) \
+        .contact(13, "go", 1, y=200).coil(14, "done", 13, y=200).right_rail(15, [14], y=200)
+    out, st = scan(b, {"limit": [3, 5, 1, 0], "go": [True, True, False, True]}, [("n", "INT"), "done"])
+    assert out["n"] == [3, 5, 1, 1]                # at least one pass, then round again while n < limit
+    assert out["done"] == [True, True, False, True]
+    assert "WHILE segment >= 0 DO" in st and "skipToTop" in st
+    KINDS_COVERED.add("jump backward")
+
+
+def test_a_backward_jump_in_an_fb_keeps_forward_jumps_and_return_working():
+    # Top: k := k + 1; k >= 4 -> return; jump Top (unconditionally from the rail)... bounded by the return
+    b = Body().left_rail(1, points=3) \
+        .label(2, "Top", y=0) \
+        .in_var(3, "k", y=40).in_var(4, "INT#1", y=60) \
+        .block(5, "ADD", {"EN": 1, "IN1": 3, "IN2": 4}, ["ENO", "OUT"], y=40) \
+        .out_var(6, "k", (5, "OUT"), y=40) \
+        .in_var(7, "k", y=100).in_var(8, "stopAt", y=120) \
+        .block(9, "GE", {"IN1": 7, "IN2": 8}, ["OUT"], y=100) \
+        .ret(10, (9, "OUT"), y=100) \
+        .jump(11, "Top", 1, y=160)
+    out, _ = scan(b, {"stopAt": [4, 6, 0]}, [("k", "INT")], locals_=())
+    assert out["k"] == [4, 6, 7]                   # k persists: 0 -> 4, then -> 6, then one pass -> 7
 
 
 # -------------------------------------------------------------------- rung ordering --

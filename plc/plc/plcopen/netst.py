@@ -562,8 +562,7 @@ class Translator:
                             raise GraphError(f"jump to label '{e.text}', which this body does not have",
                                              e.line, e.id)
                         if target <= i:
-                            raise GraphError(f"jump back to label '{e.text}' (a loop within one scan): only "
-                                             "forward jumps are supported", e.line, e.id)
+                            return self.emit_segments(ordered, positions, n_networks)
                         jumps.setdefault(e.text.upper(), []).append((i, target))
         if jumps:
             lines.append(Line("(* jumps not taken yet in this call *)", None))
@@ -594,6 +593,72 @@ class Translator:
                          for ln in body)
         if open_guard:
             lines.append(Line("END_IF;", None))
+        return BodyST(lines, self.decls, n_networks, self.warnings)
+
+    def emit_segments(self, ordered: list, positions: dict, n_networks: int) -> BodyST:
+        """A body with a backward jump: the labels cut it into segments, run by a loop over a segment number.
+
+            segment := 0;
+            WHILE segment >= 0 DO
+                CASE segment OF
+                0: <networks up to the first label>      (a network after a taken jump is skipped)
+                   IF skipToA THEN segment := 2; ELSE segment := 1; END_IF;
+                1: (* label B *) ...
+                END_CASE;
+            END_WHILE;
+
+        A jump sets its flag, the rest of its segment is skipped and the loop goes on at the label's segment,
+        wherever it is; the last segment ends the loop. A backward jump taken on every pass loops forever,
+        as on any PLC: the runtime's watchdog stops such a program."""
+        segments: list[list] = [[]]
+        starts: dict[str, int] = {}
+        for item in ordered:
+            if isinstance(item, Element):
+                starts[item.text.upper()] = len(segments)
+                segments.append([item])
+            else:
+                segments[-1].append(item)
+        seg = self.fresh("segment", "INT", "the part of the body between two labels that runs next",
+                         ("segment", 0))
+        all_flags = sorted({self.jump_flag(e.text) for item in ordered if isinstance(item, list)
+                            for e in item if e.kind == "jump"})
+        lines: list[Line] = [Line(f"{seg} := 0;", None), Line(f"WHILE {seg} >= 0 DO", None),
+                             Line(f"    CASE {seg} OF", None)]
+        number = 0
+        for k, items in enumerate(segments):
+            lines.append(Line(f"    {k}:", None))
+            ind = " " * 8
+            lines.extend(Line(f"{ind}{f} := FALSE;", None) for f in all_flags)   # taken in this pass only
+            flags: list[tuple[str, int]] = []       # jumps of this segment so far: flag, target segment
+            for item in items:
+                guard = list(dict.fromkeys(f for f, _t in flags))
+                if isinstance(item, Element):
+                    lines.append(Line(f"{ind}(* label {item.text} *)", item.id))
+                    continue
+                number += 1
+                body: list[Line] = []
+                for a in self.action_order(item):
+                    self.action(a, body)
+                g = ind + "    " if guard else ind
+                if guard:
+                    lines.append(Line(f"{ind}IF NOT ({' OR '.join(guard)}) THEN", None))
+                lines.append(Line(f"{g}(* {self.describe(item, number)} *)", min(e.id for e in item)))
+                lines.extend(Line(g + ln.text, ln.local_id, tuple((a + len(g), b + len(g), i) for a, b, i in ln.spans))
+                             for ln in body)
+                if guard:
+                    lines.append(Line(f"{ind}END_IF;", None))
+                for e in item:
+                    if e.kind == "jump":
+                        flags.append((self.jump_flag(e.text), starts[e.text.upper()]))
+            after = k + 1 if k + 1 < len(segments) else -1
+            if flags:
+                for j, (flag, target) in enumerate(flags):
+                    lines.append(Line(f"{ind}{'IF' if j == 0 else 'ELSIF'} {flag} THEN {seg} := {target};", None))
+                lines.append(Line(f"{ind}ELSE {seg} := {after};", None))
+                lines.append(Line(f"{ind}END_IF;", None))
+            else:
+                lines.append(Line(f"{ind}{seg} := {after};", None))
+        lines += [Line("    END_CASE;", None), Line("END_WHILE;", None)]
         return BodyST(lines, self.decls, n_networks, self.warnings)
 
     def describe(self, net: list[Element], number: int) -> str:
