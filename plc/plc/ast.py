@@ -268,6 +268,11 @@ class Exit(Stmt):
 
 
 @dataclass(eq=False)
+class Continue(Stmt):
+    pass
+
+
+@dataclass(eq=False)
 class Return(Stmt):
     pass
 

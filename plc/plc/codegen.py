@@ -442,6 +442,8 @@ class Gen:
             w(f"}} while (!({self.ex(s.cond)}));")
         elif isinstance(s, A.Exit):
             w("break;")
+        elif isinstance(s, A.Continue):
+            w("continue;")          # in a FOR loop the C for's step clause still counts the variable on
         elif isinstance(s, A.Return):
             w("return RESULT__;" if self.fn is not None else "return;")
         elif isinstance(s, A.Empty):

@@ -486,6 +486,10 @@ class Parser:
                 self.next()
                 self.end_stmt("EXIT")
                 return A.Exit(t.pos)
+            if v == "CONTINUE":
+                self.next()
+                self.end_stmt("CONTINUE")
+                return A.Continue(t.pos)
             if v == "RETURN":
                 self.next()
                 self.end_stmt("RETURN")

@@ -112,11 +112,15 @@ class Analyzer:
         self.current_pou: A.Pou | None = None
         self.test_build = test_build
         self.global_scope: dict[str, VarSym] = {}
-        self.locations: dict[tuple, A.VarDecl] = {}      # (area, size, address parts) -> first declaration
+        self.locations: dict[tuple, A.VarDecl] = {}      # (scope, (area, size, parts)) -> first declaration
+        self.output_owner: dict[tuple, tuple[str, A.VarDecl, str]] = {}   # %Q address -> first scope
 
     # ================================================================ helpers ==
     def err(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
         self.d.error(pos, msg, hint, code)
+
+    def warn(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
+        self.d.warning(pos, msg, hint, code)
 
     def port(self, pos: Pos, msg: str, hint: str | None = None, code: str = "portability") -> None:
         if pos.file in self.prog.builtin_files:
@@ -343,6 +347,10 @@ class Analyzer:
                     self.err(m.pos, f"duplicate member '{m.text}' in STRUCT")
                     continue
                 mt = self.type_spec(m.spec)
+                if getattr(mt, "name", "").upper() == m.name.upper():
+                    self.port(m.pos, f"member '{m.text}' is named like its type: OpenPLC's g++ rejects the C "
+                              "that MATIEC makes of it", "give the member another name",
+                              code="portability.member-named-like-type")
                 if isinstance(mt, T.PouType):
                     self.err(m.pos, "function block instances inside a STRUCT are not supported by MATIEC")
                     mt = T.ERROR
@@ -539,11 +547,22 @@ class Analyzer:
 
     def check_location(self, d: A.VarDecl, t: T.Type, pou: A.Pou | None) -> None:
         loc = d.location
+        # one address, one variable within a scope (a PROGRAM, or the global variables); as in MATIEC, PROGRAMs
+        # may each locate a variable at the same address: they share it (an input read by several programs)
+        scope = pou.name if pou is not None else ""
         key = (loc.area, loc.size, tuple(loc.parts))
-        first = self.locations.setdefault(key, d)
+        first = self.locations.setdefault((scope, key), d)
         if first is not d:
             self.err(loc.pos, f"{loc.text} is already the location of '{first.text}'",
                      f"declared at {first.pos}; one address, one variable", code="located-duplicate")
+        elif loc.area == "Q":
+            shown = pou.text if pou is not None else ""
+            other = self.output_owner.setdefault(key, (scope, d, shown))
+            if other[0] != scope:
+                self.warn(loc.pos, f"{loc.text} is also the location of '{other[1].text}' "
+                          f"({'PROGRAM ' + other[2] if other[2] else 'a global variable'}): both write this output, "
+                          "the program that runs last in the scan wins",
+                          f"declared at {other[1].pos}", code="located-shared-output")
         if pou is not None and pou.kind == "FUNCTION_BLOCK":
             self.err(loc.pos, "located variables are not allowed inside a FUNCTION_BLOCK (iec2c crashes on them)",
                      "locate variables in the PROGRAM or in VAR_GLOBAL", code="located-in-fb")
@@ -780,9 +799,9 @@ class Analyzer:
             self.stmts(s.body)
             self.loop.loop_depth -= 1
             self.condition(s.cond, "UNTIL")
-        elif isinstance(s, A.Exit):
+        elif isinstance(s, (A.Exit, A.Continue)):
             if self.loop.loop_depth == 0:
-                self.err(s.pos, "EXIT outside a loop")
+                self.err(s.pos, f"{'EXIT' if isinstance(s, A.Exit) else 'CONTINUE'} outside a loop")
         elif isinstance(s, (A.Return, A.Empty)):
             pass
 
@@ -1200,9 +1219,9 @@ class Analyzer:
         return T.ERROR
 
     def direct(self, e: A.Direct) -> T.Type:
-        self.port(e.pos, "direct addresses in code (not in declarations) are not portable",
-                  "declare a located variable", code="portability.direct")
-        return {"X": T.BOOL, "B": T.BYTE, "W": T.WORD, "D": T.DWORD, "L": T.LWORD}[e.size]
+        self.err(e.pos, f"a direct address in code ({e.text}) is not supported (MATIEC rejects it too)",
+                 f"declare a located variable: name AT {e.text} : type;", code="direct-in-code")
+        return T.ERROR
 
     def unary(self, e: A.Unary, scope, expected) -> T.Type:
         t = self.expr(e.operand, scope, expected if e.op != "NOT" else None)

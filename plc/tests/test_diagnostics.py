@@ -152,15 +152,19 @@ def test_located_variable_size_must_match_its_type():
     assert one_error(src) == (3, 10, "%IW0 is a 16-bit location but 'x' is BOOL")
 
 
-def test_duplicate_locations_across_programs_and_globals():
+def test_one_output_located_in_two_scopes_is_a_warning_one_scope_an_error():
+    # as in MATIEC: one address, one variable within a scope; PROGRAMs and the globals may share an address
+    # (test_conformance_matiec_corpus.py), and an output written from two scopes is worth a warning
     src = (prog("VAR\n    a AT %QW3 : INT;\nEND_VAR", "a := 1;", "P_One")
-           + prog("VAR\n    b AT %QW3 : WORD;\n    c AT %QX0.1 : BOOL;\nEND_VAR", "b := 16#1;", "P_Two")
+           + prog("VAR\n    b AT %QW3 : WORD;\n    c AT %QX0.1 : BOOL;\n    d AT %QX0.1 : BOOL;\nEND_VAR",
+                  "b := 16#1;", "P_Two")
            + "CONFIGURATION Config0\nVAR_GLOBAL\n    g AT %QX0.1 : BOOL;\n    h AT %QX0.2 : BOOL;\nEND_VAR\n"
            "RESOURCE Res0 ON PLC\nTASK t(INTERVAL := T#4ms, PRIORITY := 0);\nPROGRAM p1 WITH t : P_One;\n"
            "PROGRAM p2 WITH t : P_Two;\nEND_RESOURCE\nEND_CONFIGURATION\n")
-    errs = errors(src)
-    assert errs == [(9, 10, "%QW3 is already the location of 'a'"),
-                    (16, 10, "%QX0.1 is already the location of 'c'")]
+    assert errors(src) == [(11, 10, "%QX0.1 is already the location of 'c'")]
+    shared = [(ln, col, msg.split(":")[0]) for ln, col, msg, code in warnings(src) if code == "located-shared-output"]
+    assert shared == [(9, 10, "%QW3 is also the location of 'a' (PROGRAM P_One)"),
+                      (17, 10, "%QX0.1 is also the location of 'c' (PROGRAM P_Two)")]
 
 
 def test_located_variable_inside_a_function_block():
