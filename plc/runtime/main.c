@@ -215,12 +215,16 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             o->port = (int)v;
             break;
         case OPT_IO:
-            if (strcmp(optarg, "sim") == 0)
-                o->io = &io_sim_layer;
-            else if (strcmp(optarg, "none") == 0)
-                o->io = &io_none_layer;
-            else
-                return usage_error("--io: unknown I/O layer '%s' (sim or none)", optarg);
+            o->io = io_layer_find(optarg);
+            if (o->io == NULL) {
+                char text[256];
+                int n = snprintf(text, sizeof text, "--io: unknown I/O layer '%s' (", optarg);
+                for (const io_layer_t *const *l = io_layers; *l && n > 0 && (size_t)n < sizeof text; l++)
+                    n += snprintf(text + n, sizeof text - (size_t)n, "%s%s", l == io_layers ? "" : ", ", (*l)->name);
+                if (n > 0 && (size_t)n < sizeof text)
+                    snprintf(text + n, sizeof text - (size_t)n, ")");
+                return usage_error("%s", text);
+            }
             break;
         case OPT_RETAIN:
             o->retain_path = optarg;

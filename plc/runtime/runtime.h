@@ -175,6 +175,11 @@ typedef struct io_layer {
 extern const io_layer_t io_sim_layer;
 extern const io_layer_t io_none_layer;
 
+/* Every I/O layer, found by name (--io NAME), as libmodbus finds its backends;
+ * NULL-terminated.  A new layer is one entry here and one source file. */
+extern const io_layer_t *const io_layers[];
+const io_layer_t *io_layer_find(const char *name);
+
 /* -------------------------------------------------------------- options */
 
 #define RT_MAX_ALLOW 32
