@@ -30,7 +30,7 @@ REASON_ABORT_BY_TOOLCHANGER_FAULT = 101
 WATCH = ("ToolPrepared", "ToolChanged", "StartChangeAck", "EmcAbortAck", "ToolchangerFault", "PlcReady",
          "CarouselHomed", "ChangerBusy", "HostLinkOk", "PlcAlive", "ToolchangerReason", "PlcHeartbeat",
          "IovState", "ChangerState", "FaultReason", "ToolInSpindle", "CurrentPocket", "EmcAbort", "ToolChange",
-         "StartChange", "Recovery", "UncertainTool")
+         "StartChange", "Recovery", "UncertainTool", "SimSpindleTool")
 RECOVERY_HOME, RECOVERY_CONFIRM = 1, 2   # bits of the Recovery register
 
 
@@ -400,6 +400,8 @@ class Session:
             todo = [t for bit, t in ((RECOVERY_HOME, "home the changer"), (RECOVERY_CONFIRM, "confirm the tool "
                     f"(tool {s.get('UncertainTool')} in the spindle or in its pocket)")) if recovery & bit]
             lines.append("recovery before the next change: " + ", then ".join(todo))
+        if s.get("SimSpindleTool"):
+            lines.append(f"simulated plant: the spindle holds tool {s['SimSpindleTool']}")
         reason = int(s.get("FaultReason", 0))
         fault = f"{reason} {names.get(reason, '?')}: {self.reason_text(reason)}" if reason else "none"
         lines.append(f"PLC fault: {fault}   host fault latch: "
