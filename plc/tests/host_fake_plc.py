@@ -6,7 +6,8 @@ Every write request and every step of the fake's own logic goes into one log, in
 address, values), then ("set", coil, value) for each coil the write changed, or ("event", text), so a test can
 check the order of what the host did against what the PLC showed.  With whole_bytes=True, FC15 is applied the
 way OpenPLC v3 applies it: 8 coils per data byte from the start address, the padding bits of the last byte
-included (writing 2 coils at 406 also writes 408..413).  The toolchanger logic runs in its own thread every `scan` seconds, like a scan.
+included (writing 2 coils at 406 also writes 408..413).  The toolchanger logic runs in its own thread every
+`scan` seconds, like a scan.
 """
 from __future__ import annotations
 
