@@ -242,7 +242,9 @@ def test_an_abort_at_the_handover_is_recovered_with_home_and_confirm(plc):
         assert "plc host confirm 2" in home, home
         wrong = plc.host("confirm", "4")
         assert wrong.returncode == 1 and "confirm 2" in wrong.stdout, wrong.stdout
-        ok(plc.host("confirm", str(s["SimSpindleTool"])))
+        refused = plc.host("T5 M6")
+        assert refused.returncode == 1 and "toolchanger error -108" in refused.stdout, refused.stdout
+        ok(plc.host("clear", "confirm", str(s["SimSpindleTool"])))
         s = tags.read("Recovery", "ToolInSpindle", "SimSpindleTool")
         assert s["Recovery"] == 0 and s["ToolInSpindle"] == s["SimSpindleTool"], s
         snapshots.append(mw_words(tags))
