@@ -69,7 +69,7 @@ SCHEMA = {
         "invert_home": (bool,), "invert_pocket": (bool,), "invert_on": (bool,), "invert_plus_dir": (bool,),
         "invert_minus_dir": (bool,), "invert_code": (list, bool), "pocket_codes": (list, int),
     },
-    "changer": {"brake_release_ms": (int, 0, 10000), "auto_home": (bool,)},
+    "changer": {"brake_release_ms": (int, 0, 10000), "auto_home": (bool,), "tool_sensor": (bool,)},
     "simulation": {"pocket_time_ms": (int, 1, 10000), "coast_ms": (int, 0, 10000), "skew_scans": (int, 0, 100),
                    "arm_travel_ms": (int, 1, 60000), "collet_ms": (int, 1, 60000), "brake_ms": (int, 0, 60000)},
 }
@@ -177,6 +177,7 @@ def generate(data: dict, source: str) -> str:
            "    ChangerPlant : ST_ChangerPlantConfig; (* simulated arm, collet and brake *)",
            "    BrakeReleaseTime : TIME;            (* brake released this long before a pre-positioning turn *)",
            "    AutoHome : BOOL;                    (* run the Home sequence by itself after power-up *)",
+           "    ToolSensor : BOOL;                  (* a tool-present sensor (ToolPresent) decides an unknown tool *)",
            "END_VAR",
            f"Rotary.pockets := {car['pockets']};",
            f"Rotary.inputDescription := E_RotaryInputs#{INPUTS[car['inputs']]};",
@@ -206,6 +207,7 @@ def generate(data: dict, source: str) -> str:
             f"ChangerPlant.brakeTime := {ms(sim.get('brake_ms', 50))};",
             f"BrakeReleaseTime := {ms(chg.get('brake_release_ms', 500))};",
             f"AutoHome := {st_bool(chg.get('auto_home', True))};",
+            f"ToolSensor := {st_bool(chg.get('tool_sensor', False))};",
             "END_FUNCTION_BLOCK"]
     return "\n".join(out) + "\n"
 

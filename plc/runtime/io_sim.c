@@ -4,7 +4,7 @@
  * The carousel, arm and collet are simulated by the ST plant models
  * (FB_CarouselPlant and friends) inside the program, so that the same
  * simulation also runs on a real OpenPLC for demos.  This layer tells the
- * program to use them by raising the discrete input SIM_FLAG_BIT (%IX99.7,
+ * program to use them by raising the discrete input SIM_FLAG_BIT (%IX49.7,
  * "SimulatedPlant" in modbus_map/map.toml).  Every other input is a loop-back
  * of the outputs of the previous scan (%QXn.m -> %IXn.m, %QWn -> %IWn), which
  * keeps simple programs testable without a plant.
@@ -14,8 +14,8 @@
 
 #include "runtime.h"
 
-/* %IX99.7: TRUE tells the program that its plant models stand in for the machine. */
-#define SIM_FLAG_BIT 799
+/* %IX49.7: TRUE tells the program that its plant models stand in for the machine. */
+#define SIM_FLAG_BIT 399
 
 typedef struct sim_plant {
     plc_bool_t qx[MAP_BITS];
@@ -54,7 +54,7 @@ static void sim_close(void *state)
 
 const io_layer_t io_sim_layer = {
     .name = "sim",
-    .description = "simulated plant (the program's plant models, %IX99.7 set; other inputs loop back)",
+    .description = "simulated plant (the program's plant models, %IX49.7 set; other inputs loop back)",
     .open = sim_open,
     .read_inputs = sim_read_inputs,
     .write_outputs = sim_write_outputs,

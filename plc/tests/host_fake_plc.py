@@ -3,8 +3,11 @@ scripted toolchanger end of iov2 behind it, so tests can make the PLC do what th
 (hold a stale ack, fault with a given reason in a given phase, never answer, stop its heartbeat).
 
 Every write request and every step of the fake's own logic goes into one log, in order: ("write", function,
-address, values) or ("event", text), so a test can check the order of what the host did against what the
-PLC showed.  The toolchanger logic runs in its own thread every `scan` seconds, like a scan.
+address, values), then ("set", coil, value) for each coil the write changed, or ("event", text), so a test can
+check the order of what the host did against what the PLC showed.  With whole_bytes=True, FC15 is applied the
+way OpenPLC v3 applies it: 8 coils per data byte from the start address, the padding bits of the last byte
+included (writing 2 coils at 406 also writes 408..413).  The toolchanger logic runs in its own thread every
+`scan` seconds, like a scan.
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ class Behaviour:
     stale_prepared: bool = False      # start with tool-prepared stuck high for `stale_scans`
     stale_scans: int = 20
     heartbeat: bool = True            # PlcAlive and PlcHeartbeat move
+    fault_on_abort: int | None = None  # an abort during a change latches this fault (the real PLC: -103)
 
 
 @dataclass
@@ -36,8 +40,10 @@ class Addr:
 
 
 class FakePlc:
-    def __init__(self, addr: Addr, behaviour: Behaviour | None = None, scan: float = 0.004):
+    def __init__(self, addr: Addr, behaviour: Behaviour | None = None, scan: float = 0.004,
+                 whole_bytes: bool = False):
         self.addr = addr
+        self.whole_bytes = whole_bytes
         self.b = behaviour or Behaviour()
         self.scan = scan
         self.coils = [False] * 800
@@ -159,8 +165,8 @@ class FakePlc:
             return bytes([fc, 2 * count]) + b"".join(struct.pack(">H", v) for v in regs)
         if fc == 5:
             address, value = struct.unpack(">HH", pdu[1:5])
-            self.coils[address] = value == 0xFF00
             self.log.append(("write", 5, address, [int(value == 0xFF00)]))
+            self._set_coils(address, [value == 0xFF00])
             return pdu[:5]
         if fc == 6:
             address, value = struct.unpack(">HH", pdu[1:5])
@@ -168,10 +174,11 @@ class FakePlc:
             self.log.append(("write", 6, address, [value]))
             return pdu[:5]
         if fc == 15:
-            address, count, _n = struct.unpack(">HHB", pdu[1:6])
-            values = [bool(pdu[6 + i // 8] >> (i % 8) & 1) for i in range(count)]
-            self.coils[address:address + count] = values
-            self.log.append(("write", 15, address, [int(v) for v in values]))
+            address, count, nbytes = struct.unpack(">HHB", pdu[1:6])
+            applied = 8 * nbytes if self.whole_bytes else count
+            values = [bool(pdu[6 + i // 8] >> (i % 8) & 1) for i in range(applied)]
+            self.log.append(("write", 15, address, [int(v) for v in values[:count]]))
+            self._set_coils(address, values[:len(self.coils) - address])
             return pdu[:5]
         if fc == 16:
             address, count, _n = struct.unpack(">HHB", pdu[1:6])
@@ -180,6 +187,12 @@ class FakePlc:
             self.log.append(("write", 16, address, values))
             return pdu[:5]
         return bytes([fc | 0x80, 1])
+
+    def _set_coils(self, address: int, values: list[bool]) -> None:
+        for i, v in enumerate(values):
+            if self.coils[address + i] != v:
+                self.coils[address + i] = v
+                self.log.append(("set", address + i, int(v)))
 
     # ------------------------------------------------------------ toolchanger --
     def _plc(self) -> None:
@@ -252,6 +265,8 @@ class FakePlc:
         if self.c("EmcAbort") and b.ack_abort:
             if not self.c("EmcAbortAck"):
                 self.event(f"abort reason {self.r('EmcReason')}")
+                if b.fault_on_abort is not None and change:
+                    self._raise_fault(b.fault_on_abort, "change (aborted)")
             self.set_c("EmcAbortAck", True)
         elif not self.c("EmcAbort"):
             self.set_c("EmcAbortAck", False)

@@ -47,24 +47,23 @@ def test_numbers_are_written_before_the_request_bit_and_together(capsys):
     assert status == 0, out + err
     numbers = ("write", 16, reg("ToolPrepNumber"), [7, 7])
     assert reg("ToolPrepPocket") == reg("ToolPrepNumber") + 1
-    assert fake.index(numbers) < fake.index(("write", 5, coil("ToolPrepare"), [1]))
-    assert fake.index(("write", 5, coil("ToolPrepare"), [1])) < fake.index(("write", 5, coil("ToolPrepare"), [0]))
+    assert fake.index(numbers) < fake.index(("set", coil("ToolPrepare"), 1))
+    assert fake.index(("set", coil("ToolPrepare"), 1)) < fake.index(("set", coil("ToolPrepare"), 0))
 
 
 def test_request_waits_for_a_stale_ack_to_drop_first(capsys):
     with FakePlc(ADDR, Behaviour(stale_prepared=True, stale_scans=60)) as fake:
         status, out, err = run(fake, capsys, "T4")
     assert status == 0, out + err
-    assert fake.index("stale tool-prepared dropped") < fake.index(("write", 5, coil("ToolPrepare"), [1]))
+    assert fake.index("stale tool-prepared dropped") < fake.index(("set", coil("ToolPrepare"), 1))
 
 
 def test_each_request_is_dropped_after_its_ack_and_the_next_waits_for_the_ack_to_drop(capsys):
     with FakePlc(ADDR, Behaviour(change_scans=3)) as fake:
         status, out, err = run(fake, capsys, "T2 M6", extra=("--no-start-change",))
     assert status == 0, out + err
-    writes = [e for e in fake.log if e[0] == "write" and e[1] == 5
-              and e[2] in (coil("ToolPrepare"), coil("ToolChange"))]
-    assert [(e[2], e[3][0]) for e in writes] == [(coil("ToolPrepare"), 1), (coil("ToolPrepare"), 0),
+    writes = [e for e in fake.log if e[0] == "set" and e[1] in (coil("ToolPrepare"), coil("ToolChange"))]
+    assert [(e[1], e[2]) for e in writes] == [(coil("ToolPrepare"), 1), (coil("ToolPrepare"), 0),
                                                  (coil("ToolChange"), 1), (coil("ToolChange"), 0)]
 
 
@@ -72,7 +71,7 @@ def test_start_change_handshake_comes_before_tool_change(capsys):
     with FakePlc(ADDR) as fake:
         status, out, err = run(fake, capsys, "T2 M6")
     assert status == 0, out + err
-    assert fake.index(("write", 5, coil("StartChange"), [0])) < fake.index(("write", 5, coil("ToolChange"), [1]))
+    assert fake.index(("set", coil("StartChange"), 0)) < fake.index(("set", coil("ToolChange"), 1))
 
 
 def test_pocket_comes_from_the_tool_table(capsys, tmp_path):
@@ -122,8 +121,8 @@ def test_clear_drops_the_host_latch_after_the_plc_cleared(capsys):
         run(fake, capsys, "T5 M6")
         assert fake.c("ToolchangerFaulted")
         status, out, err = run(fake, capsys, "clear")
-        clear_on = fake.index(("write", 5, coil("ClearFault"), [1]))
-        latch_off = max(i for i, e in enumerate(fake.log) if e == ("write", 5, coil("ToolchangerFaulted"), [0]))
+        clear_on = fake.index(("set", coil("ClearFault"), 1))
+        latch_off = max(i for i, e in enumerate(fake.log) if e == ("set", coil("ToolchangerFaulted"), 0))
         assert not fake.c("ToolchangerFaulted") and not fake.c("ClearFault")
     assert status == 0, out + err
     assert clear_on < latch_off
@@ -149,7 +148,7 @@ def test_abort_writes_the_reason_before_raising_emc_abort(capsys):
         status, out, err = run(fake, capsys, "abort", "100")
     assert status == 0, out + err
     reason = [i for i, e in enumerate(fake.log) if e[0] == "write" and e[2] == reg("EmcReason") and e[3] == [100]]
-    assert reason and reason[0] < fake.index(("write", 5, coil("EmcAbort"), [1]))
+    assert reason and reason[0] < fake.index(("set", coil("EmcAbort"), 1))
     assert "abort reason 100" in fake.events
 
 

@@ -165,3 +165,94 @@ def test_the_tool_in_the_spindle_survives_a_restart_of_the_plc(tmp_path):
         assert ok(p.host("T2 M6")).splitlines()[-1] == "tool 2 in spindle"
     finally:
         p.stop()
+
+
+MW_FIRST, MW_LAST = 1024, 1089          # the located %MW words of the map (%MW0..%MW65)
+MD_FIRST, MD_LAST = 2048, 2061          # the located %MD words (%MD0..%MD6, high word first)
+
+
+def mw_words(tags: Tags) -> tuple[list[int], list[int]]:
+    """The %MW words and the %MD double words, read at rest."""
+    mw = tags.client.read_holding(MW_FIRST, MW_LAST - MW_FIRST + 1)
+    md = tags.client.read_holding(MD_FIRST, MD_LAST - MD_FIRST + 1)
+    return mw, [(md[i] << 16) | md[i + 1] for i in range(0, len(md), 2)]
+
+
+def openplc_checksum(words: tuple[list[int], list[int]]) -> int:
+    """OpenPLC v3's persistent-storage change check: a 32-bit XOR of every %MW word and every %MD double word
+    (webserver/core/persistent_storage.cpp, calculate_combined_checksum)."""
+    out = 0
+    for w in words[0] + words[1]:
+        out ^= w
+    return out
+
+
+def test_an_abort_at_the_handover_is_recovered_with_home_and_confirm(plc):
+    """T5 M6 with tool 2 in the spindle, aborted by a second host while Put Tool has the collet open: the first host
+    ends at once; the next M6 is refused naming the recovery; `home`, then `confirm` of the tool the simulated
+    spindle really holds; then T5 M6 completes.  Along the way, OpenPLC's persistent-storage check (an XOR of the
+    %MW and %MD words) changes whenever a %MW word changed."""
+    ok(plc.host("clear", "T2 M6"))
+    client, tags = plc.tags()
+    with client:
+        snapshots = [mw_words(tags)]
+        # The test answers the mailbox itself (MbxHostActive) and leaves the MOVEABS of Put step 16 (spindle up,
+        # collet open) unanswered: the sequence waits there however slow the machine is.
+        tags.write(MbxHostActive=True)
+        first = subprocess.Popen([sys.executable, "-m", "plc.cli", "host", "--port", str(plc.port), "--timeout", "600",
+                                  "T5 M6"], cwd=REPO / "plc", stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                 text=True)
+        try:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:
+                s = tags.read("SeqKind", "SeqStep", "MbxRequestPending", "MbxRequestId")
+                if s["SeqKind"] == 3 and s["SeqStep"] == 16:
+                    break
+                if s["MbxRequestPending"]:
+                    tags.write(MbxAnswerResult=1)
+                    tags.write(MbxAnswerId=s["MbxRequestId"])
+                time.sleep(0.005)
+            else:
+                raise AssertionError("Put Tool never reached step 16")
+            # the second host: an HMI's raw abort (reason first, then emc-abort, held until its ack)
+            tags.write(EmcReason=8)
+            tags.write(EmcAbort=True)
+            deadline = time.monotonic() + 30
+            while not tags.get("EmcAbortAck") and time.monotonic() < deadline:
+                time.sleep(0.005)
+            tags.write(EmcAbort=False)
+            out_first, _ = first.communicate(timeout=120)
+        finally:
+            tags.write(MbxHostActive=False)
+            if first.poll() is None:
+                first.kill()
+        assert first.returncode == 1, out_first
+        assert "timeout" not in out_first, out_first
+        s = tags.read("FaultReason", "Recovery", "ToolInSpindle", "UncertainTool")
+        assert s["FaultReason"] == -103 and s["Recovery"] == 3, s      # step 16: home, then confirm
+        snapshots.append(mw_words(tags))
+
+        ok(plc.host("clear"))
+        refused = plc.host("T5 M6")
+        assert refused.returncode == 1 and "toolchanger error -107" in refused.stdout, refused.stdout
+        home = ok(plc.host("clear", "home"))
+        s = tags.read("Recovery", "ToolInSpindle", "UncertainTool", "SimSpindleTool")
+        assert not s["Recovery"] & 1, s
+        assert s["Recovery"] == 2 and s["ToolInSpindle"] == -1 and s["UncertainTool"] == 2, s
+        assert "plc host confirm 2" in home, home
+        wrong = plc.host("confirm", "4")
+        assert wrong.returncode == 1 and "confirm 2" in wrong.stdout, wrong.stdout
+        refused = plc.host("T5 M6")
+        assert refused.returncode == 1 and "toolchanger error -108" in refused.stdout, refused.stdout
+        ok(plc.host("clear", "confirm", str(s["SimSpindleTool"])))
+        s = tags.read("Recovery", "ToolInSpindle", "SimSpindleTool")
+        assert s["Recovery"] == 0 and s["ToolInSpindle"] == s["SimSpindleTool"], s
+        snapshots.append(mw_words(tags))
+        assert ok(plc.host("T5 M6")).splitlines()[-1] == "tool 5 in spindle"
+        s = tags.read("SimSpindleTool", "PocketTool2", "PocketTool5")
+        assert (s["SimSpindleTool"], s["PocketTool2"], s["PocketTool5"]) == (5, 2, 0), s
+        snapshots.append(mw_words(tags))
+    for a, b in zip(snapshots, snapshots[1:]):
+        if a[0] != b[0]:
+            assert openplc_checksum(a) != openplc_checksum(b), \
+                "the %MW words changed but OpenPLC's XOR checksum did not: it would not save them"

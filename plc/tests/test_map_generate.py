@@ -219,7 +219,11 @@ def test_runtime_config_allows_writes_only_to_host_signals_and_keeps_the_retaine
             out |= set(range(int(lo), int(hi or lo) + 1))
         return out
     host = [s for s in RMAP.signals if s.direction == "host_to_plc"]
-    assert expand(cfg.writable_coils) == {s.address for s in host if s.table == "coil"}
+    # coils by whole bytes (OpenPLC applies FC15 so); `plc map check` keeps other signals out of those bytes
+    assert expand(cfg.writable_coils) == {a for s in host if s.table == "coil"
+                                          for a in range(s.address // 8 * 8, s.address // 8 * 8 + 8)}
+    coils = {s.address: s for s in RMAP.signals if s.table == "coil"}
+    assert all(coils[a].direction == "host_to_plc" for a in expand(cfg.writable_coils) if a in coils)
     assert expand(cfg.writable_registers) == {a for s in host if s.table == "holding_register"
                                               for a in range(s.address, s.last + 1)}
     assert expand(cfg.retain_registers) == {a for s in RMAP.signals if s.retained

@@ -4,6 +4,7 @@
     plc host T5                 prepare only;  plc host M6: change to the prepared tool
     plc host abort [REASON]     emc-abort (default reason 8, TASK_ABORT)
     plc host clear              clear the fault latches (host's and PLC's)
+    plc host confirm N          after an interrupted change and `home`: tool N is in the spindle (0 = empty)
     plc host home | status
     plc host                    interactive prompt
 
@@ -29,10 +30,11 @@ PROMPT_HELP = """  Tn            prepare tool n (pocket n, or the tool table's)
   T5 M6         both; several commands per line run in order
   abort [N]     emc-abort with reason N (default 8, TASK_ABORT)
   clear         clear the PLC's fault and the host's fault latch
-  home          home the carousel
+  home          home the carousel (and the changer: arm back, collet closed)
+  confirm N     tool N is in the spindle (0 = empty), when the PLC asks after an interrupted change
   status        tool, pocket, link, states, fault
   quit          leave (Ctrl-D too)"""
-TOKEN = re.compile(r"^(T\d+|M0*6|ABORT|CLEAR|STATUS|HOME|HELP|QUIT|EXIT|\d+)$", re.IGNORECASE)
+TOKEN = re.compile(r"^(T\d+|M0*6|ABORT|CLEAR|CONFIRM|STATUS|HOME|HELP|QUIT|EXIT|\d+)$", re.IGNORECASE)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -44,7 +46,7 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="plc host", description="A CNC host for the atc-plc register map: the CNC end of LinuxCNC's "
                 "iov2 protocol over Modbus/TCP. Commands: Tn (prepare tool n), M6 (change), abort [REASON], "
-                "clear, home, status; several per call (\"T5 M6\"); without commands an interactive prompt.",
+                "clear, home, confirm N (tool N in the spindle after an interrupted change), status; several per call (\"T5 M6\"); without commands an interactive prompt.",
                 epilog="exit status: 0 done, 3 done but a soft fault skipped a change, 1 a command failed, "
                        "2 usage, map or connection problem")
     p.add_argument("commands", nargs="*", metavar="COMMAND", help="e.g. \"T5 M6\", T0, M6, abort 8, clear")
@@ -81,10 +83,10 @@ def tokens(words: list[str]) -> list[str]:
     for word in " ".join(words).split():
         for part in re.findall(r"[TtMm]\d+|[A-Za-z]+|\d+", word) or [word]:
             if not TOKEN.match(part):
-                raise ValueError(f"unknown command '{part}' (Tn, M6, abort [REASON], clear, home, status)")
+                raise ValueError(f"unknown command '{part}' (Tn, M6, abort [REASON], clear, home, confirm N, status)")
             out.append(part.upper())
         if "".join(re.findall(r"[TtMm]\d+|[A-Za-z]+|\d+", word)) != word:
-            raise ValueError(f"cannot read '{word}' (Tn, M6, abort [REASON], clear, home, status)")
+            raise ValueError(f"cannot read '{word}' (Tn, M6, abort [REASON], clear, home, confirm N, status)")
     return out
 
 
@@ -114,6 +116,12 @@ def run_commands(session: Session, words: list[str], pockets: dict[int, int], sa
             outcome = session.clear()
         elif cmd == "HOME":
             outcome = session.home()
+        elif cmd == "CONFIRM":
+            if i >= len(todo) or not todo[i].isdigit():
+                say("error: confirm needs the tool in the spindle: confirm N (0 = empty)")
+                return EXIT_USAGE
+            outcome = session.confirm(int(todo[i]))
+            i += 1
         elif cmd == "STATUS":
             for line in session.status():
                 say(line)
@@ -133,7 +141,7 @@ def run_commands(session: Session, words: list[str], pockets: dict[int, int], sa
 
 
 def interactive(session: Session, pockets: dict[int, int], say) -> int:
-    say("atc-plc host: Tn, M6, abort [REASON], clear, home, status, quit (the host heartbeat keeps running)")
+    say("atc-plc host: Tn, M6, abort [REASON], clear, home, confirm N, status, quit (the host heartbeat keeps running)")
     status = EXIT_OK
     while True:
         try:

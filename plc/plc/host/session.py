@@ -29,7 +29,9 @@ REASON_ABORT_BY_TOOLCHANGER_FAULT = 101
 
 WATCH = ("ToolPrepared", "ToolChanged", "StartChangeAck", "EmcAbortAck", "ToolchangerFault", "PlcReady",
          "CarouselHomed", "ChangerBusy", "HostLinkOk", "PlcAlive", "ToolchangerReason", "PlcHeartbeat",
-         "IovState", "ChangerState", "FaultReason", "ToolInSpindle", "CurrentPocket")
+         "IovState", "ChangerState", "FaultReason", "ToolInSpindle", "CurrentPocket", "EmcAbort", "ToolChange",
+         "StartChange", "Recovery", "UncertainTool", "SimSpindleTool")
+RECOVERY_HOME, RECOVERY_CONFIRM = 1, 2   # bits of the Recovery register
 
 
 class HostError(Exception):
@@ -157,16 +159,27 @@ class Session:
         reason, self._new_fault = self._new_fault, None
         return reason
 
+    def interrupted(self, s: dict, holding: str) -> bool:
+        """The command this host holds (the request coil `holding`) has ended without its ack: the PLC latched a
+        fault (even if another host acknowledged its fault line before we saw it), or another host raised
+        emc-abort or dropped our request."""
+        if self._new_fault is not None or s.get("FaultReason", 0) != 0:
+            return True
+        if s.get("EmcAbort") and not self.tags.meant("EmcAbort"):
+            return True
+        return holding in s and self.tags.meant(holding) is True and not s[holding]
+
     def wait(self, cond: Callable[[dict], bool], timeout: float, what: str,
-             stop_on_fault: bool = False) -> dict:
-        """Poll until cond(values) holds; HostError on timeout; with stop_on_fault, return early on a new fault
-        (the caller sees it with take_fault)."""
+             stop_on_fault: bool = False, holding: str = "") -> dict:
+        """Poll until cond(values) holds; HostError on timeout; with stop_on_fault, return at once when the
+        command ends otherwise (a fault, another host's abort: see interrupted; a new fault is seen with
+        take_fault)."""
         deadline = time.monotonic() + timeout
         while True:
             s = self.poll()
             if cond(s):
                 return s
-            if stop_on_fault and self._new_fault is not None:
+            if stop_on_fault and self.interrupted(s, holding):
                 return s
             if time.monotonic() > deadline:
                 raise HostError(f"timeout: waited {timeout:g} s for {what} ({self.describe(s)})")
@@ -219,8 +232,10 @@ class Session:
             self.wait(lambda s: not s["StartChangeAck"], self.timeouts.ack_drop, "start-change-ack to drop")
             self.tags.write(StartChange=True)
             s = self.wait(lambda s: s["StartChangeAck"], self.timeouts.request, "start-change-ack",
-                          stop_on_fault=True)
-            reason = self.take_fault()
+                          stop_on_fault=True, holding="StartChange")
+            reason = self.fault_of(s)
+            if reason is None and not s["StartChangeAck"]:
+                return self._ended_by_another_host("StartChange")
             if reason is not None and reason <= 0 and not s["StartChangeAck"]:
                 return self._abort_for_fault(reason, REASON_MOTION_OR_IO_ERROR)
             self.tags.write(StartChange=False)
@@ -232,13 +247,15 @@ class Session:
         self.tags.write(ToolChange=True)
         try:
             s = self.wait(lambda s: s["ToolChanged"], self.timeouts.request, f"tool-changed for tool {tool}",
-                          stop_on_fault=True)
+                          stop_on_fault=True, holding="ToolChange")
         except HostError as exc:
             self._abort(REASON_TASK_ABORT)
             raise HostError(f"{exc}; the change was aborted (emc-abort {REASON_TASK_ABORT})") from None
-        reason = self.take_fault()
+        reason = self.fault_of(s)
         if not s["ToolChanged"] and reason is not None:
             return self._fault_ends_change(reason, refused=False)
+        if not s["ToolChanged"]:
+            return self._ended_by_another_host("ToolChange")
         self.tags.write(ToolChange=False)
         self.wait(lambda s: not s["ToolChanged"], self.timeouts.ack_drop, "tool-changed to drop")
         self.tool_number, self.prepared = tool, None
@@ -248,6 +265,23 @@ class Session:
         if plc_tool != tool:
             return Outcome(False, text + f", but the PLC reports tool {plc_tool}", changed=True)
         return Outcome(True, text, changed=True)
+
+    def fault_of(self, s: dict) -> int | None:
+        """The fault that ended a wait: the one this host answered, or the PLC's latched reason when another
+        host answered the fault line before this one saw it (the host latch is set as iov2 would)."""
+        reason = self.take_fault()
+        if reason is None and int(s.get("FaultReason", 0)) != 0:
+            reason = int(s["FaultReason"])
+            self.faulted, self.fault_reason = True, reason
+            self.tags.write(ToolchangerFaulted=True)
+            self.say(f"toolchanger fault {reason}: {self.reason_text(reason)} ({self.severity(reason)})")
+        return reason
+
+    def _ended_by_another_host(self, holding: str) -> Outcome:
+        """Another host aborted (or dropped our request): drop ours and report; nothing is left to acknowledge."""
+        self.tags.write(**{holding: False})
+        self.prepared = None
+        return Outcome(False, f"M6 aborted by another host (emc-abort or {holding} dropped by another client)")
 
     def _fault_ends_change(self, reason: int, refused: bool) -> Outcome:
         """LinuxCNC: an M6 meeting a fault is aborted with reason 101; then the reason decides for the program."""
@@ -317,7 +351,39 @@ class Session:
             self.tags.write(HomeRequest=False)
         if not s["CarouselHomed"]:
             return Outcome(False, f"home: the carousel is not homed ({self.describe(s)})")
-        return Outcome(True, f"home: carousel homed in {time.monotonic() - t0:.2f} s")
+        text = f"home: carousel homed in {time.monotonic() - t0:.2f} s"
+        recovery = int(s.get("Recovery", 0))
+        if recovery & RECOVERY_HOME:
+            return Outcome(False, text + ", but the PLC still asks to home the changer (is it faulted? clear first)")
+        if recovery & RECOVERY_CONFIRM:
+            text += (f"; tool {int(s['UncertainTool'])} is in the spindle or in its pocket: look, then "
+                     f"`plc host confirm {int(s['UncertainTool'])}` or `plc host confirm 0` (empty spindle)")
+        return Outcome(True, text)
+
+    def confirm(self, tool: int) -> Outcome:
+        """The operator says which tool is in the spindle after an interrupted change (ConfirmTool)."""
+        s = self.poll()
+        recovery = int(s.get("Recovery", 0))
+        uncertain = int(s.get("UncertainTool", 0))
+        if recovery & RECOVERY_HOME:
+            return Outcome(False, "confirm: home the changer first (`plc host home`): homing may still move the tool")
+        if not recovery & RECOVERY_CONFIRM:
+            return Outcome(False, f"confirm: nothing to confirm, the PLC knows tool {int(s['ToolInSpindle'])} is in "
+                           "the spindle")
+        if tool not in (0, uncertain):
+            return Outcome(False, f"confirm: tool {uncertain} is either in the spindle or in its pocket: confirm "
+                           f"{uncertain} (in the spindle) or 0 (spindle empty)")
+        self.tags.write(ConfirmToolNumber=tool)
+        self.tags.write(ConfirmTool=False)
+        self.tags.write(ConfirmTool=True)
+        try:
+            s = self.wait(lambda s: not int(s["Recovery"]) & RECOVERY_CONFIRM, 2.0, "the PLC to take the tool")
+        finally:
+            self.tags.write(ConfirmTool=False)
+        self.tool_number = int(s["ToolInSpindle"])
+        self.tags.write(ToolNumber=self.tool_number)
+        return Outcome(True, f"confirm: tool {self.tool_number} in the spindle"
+                       + ("" if tool else f", tool {uncertain} in its pocket"))
 
     def status(self) -> list[str]:
         s = self.poll()
@@ -329,6 +395,13 @@ class Session:
             f"ChangerBusy {s.get('ChangerBusy')}",
             f"IovState {s.get('IovState')}  ChangerState {s.get('ChangerState')}",
         ]
+        recovery = int(s.get("Recovery", 0))
+        if recovery:
+            todo = [t for bit, t in ((RECOVERY_HOME, "home the changer"), (RECOVERY_CONFIRM, "confirm the tool "
+                    f"(tool {s.get('UncertainTool')} in the spindle or in its pocket)")) if recovery & bit]
+            lines.append("recovery before the next change: " + ", then ".join(todo))
+        if s.get("SimSpindleTool"):
+            lines.append(f"simulated plant: the spindle holds tool {s['SimSpindleTool']}")
         reason = int(s.get("FaultReason", 0))
         fault = f"{reason} {names.get(reason, '?')}: {self.reason_text(reason)}" if reason else "none"
         lines.append(f"PLC fault: {fault}   host fault latch: "

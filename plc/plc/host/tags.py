@@ -4,6 +4,12 @@ Reads are batched: the signals asked for are grouped per table into few requests
 addresses).  Coils are read before registers, so a number read together with a bit is never older than
 the bit (the PLC writes a reason no later than the fault bit that announces it).  Writes of several
 registers that sit next to each other go out as one FC16, so the runtime applies them between two scans.
+
+Coils are written by whole bytes (FC15 of 8 coils from a multiple of 8), each carrying the value the host means
+for every coil of the byte: OpenPLC v3 applies FC15 byte by byte, so writing 2 coils would also rewrite the
+other 6 of their byte.  The coils this host holds TRUE carry TRUE; the others are read just before and written
+back as they were (a coil the host drops is written FALSE once, then no longer held), so another client's
+command in the same byte survives unless both write the same coil at once.
 """
 from __future__ import annotations
 
@@ -76,6 +82,7 @@ class Tags:
         self.rmap = rmap
         self.client = client
         self._plans: dict[tuple[str, ...], list[_Run]] = {}
+        self._owned: dict[int, bool] = {}           # coil address -> the value this host wrote last
 
     def signal(self, name: str) -> Signal:
         sig = self.rmap.signal(name)
@@ -143,10 +150,22 @@ class Tags:
                 else:
                     self.client.write_registers(sig.address, words)
             elif sig.table == "coil":
-                if len(words) == 1:
-                    self.client.write_coil(sig.address, bool(words[0]))
-                else:
-                    self.client.write_coils(sig.address, [bool(w) for w in words])
+                self._write_coil_bytes(sig.address, [bool(w) for w in words])
             else:
                 raise KeyError(f"{sig.name} is a {sig.table}: not writable")
             i = j
+
+    def _write_coil_bytes(self, address: int, values: list[bool]) -> None:
+        """Set coils address.. to values by writing their whole bytes (read-modify-write, see the module text)."""
+        for i, v in enumerate(values):
+            self._owned[address + i] = v
+        first, last = address // 8, (address + len(values) - 1) // 8
+        current = self.client.read_coils(8 * first, 8 * (last - first + 1))
+        bits = [self._owned.get(8 * first + i, b) for i, b in enumerate(current)]
+        self.client.write_coils(8 * first, bits)
+        for a in [a for a, v in self._owned.items() if not v]:
+            del self._owned[a]      # a dropped request is not held: later writes carry what the PLC shows
+
+    def meant(self, name: str) -> bool | None:
+        """TRUE while this host holds the coil TRUE; None otherwise (never written, or dropped)."""
+        return self._owned.get(self.signal(name).address)

@@ -39,12 +39,39 @@ def check(rmap: RegisterMap, facts: StFacts, diags: Diagnostics) -> None:
     enums = facts.enums
     _check_signals(rmap, enums, diags)
     _check_overlaps(rmap, diags)
+    _check_coil_bytes(rmap, diags)
     _check_link(rmap, diags)
     _check_linuxcnc(rmap, diags)
     _check_reasons(rmap, diags)
     _check_rotary(rmap, facts, diags)
     _check_st_agreement(rmap, facts, diags)
     _check_unique_st_names(rmap, diags)
+
+
+# ------------------------------------------------------------- coil bytes --
+def _check_coil_bytes(rmap: RegisterMap, diags: Diagnostics) -> None:
+    """OpenPLC v3 applies FC15 by whole bytes (8 coils per data byte, from the start address), so a host writing
+    its coils rewrites every coil of their bytes: a byte holding a host coil holds host coils only, and the
+    coils LinuxCNC's mb2hal writes (those with hal) never share a byte with coils other hosts write."""
+    by_byte: dict[int, list[Signal]] = {}
+    for sig in rmap.signals:
+        if sig.table == "coil":
+            by_byte.setdefault(sig.address // 8, []).append(sig)
+    for byte, sigs in sorted(by_byte.items()):
+        host = [s for s in sigs if s.host_writable]
+        if not host:
+            continue
+        others = [s for s in sigs if not s.host_writable]
+        if others:
+            diags.error(rmap.pos(others[0], "address"), f"{others[0].name}: coil {others[0].address} shares byte "
+                        f"{byte} (coils {8 * byte}..{8 * byte + 7}) with the host command {host[0].name}; OpenPLC "
+                        "writes coils by whole bytes", hint="give host commands bytes of their own")
+        groups = {bool(s.hal) for s in host}
+        if len(groups) > 1:
+            first = next(s for s in host if not s.hal)
+            diags.error(rmap.pos(first, "address"), f"{first.name}: coil {first.address} shares byte {byte} with "
+                        "coils mb2hal writes (hal); mb2hal would clear it on OpenPLC (whole-byte FC15)",
+                        hint="put coils without hal in another byte")
 
 
 # ------------------------------------------------------------------ names --

@@ -220,7 +220,8 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
         "# = E-stop): the machine HAL must not connect emc-enable-in itself.",
         "# Realtime helpers are loaded with names=atc-...: if the machine HAL loads one of these components too",
         "# (timedelay, lincurve, conv_float_s32, oneshot, and2, siggen), merge the names= lists into one loadrt.",
-        "# Signals without a writer (atc-clear-fault, atc-home-request) are pulsed by M150, a GUI or `halcmd sets`.",
+        "# Signals without a writer (atc-clear-fault, atc-home-request, atc-confirm-tool...) are set by the M-codes",
+        "# of configs/linuxcnc/mcodes (M150 clear, M151 P<tool> confirm, M152 home), a GUI or `halcmd sets`.",
     ]
     if pins is not None:
         out.append("# Protocol 1 (EMCIO = io): only the prepare and change pairs exist; the PLC's other iov2 lines "
@@ -318,9 +319,14 @@ def _wire_out(rmap: RegisterMap, tx: Tx, sig: Signal, settle: list[Signal], sour
                 f"net {net}-settled {delay}.out => {pin}"]
     if not source:
         name = sig.hal if "." not in sig.hal else net
-        return [f"# {name}: no writer here, pulsed by M150, a GUI or `halcmd sets {name} 1`", f"net {name} {pin}"]
+        if sig.type != "BOOL":
+            return [f"# {name}: no writer here, set by an M-code (configs/linuxcnc/mcodes), a GUI or "
+                    f"`halcmd sets {name} N`", f"net {name} {pin}"]
+        return [f"# {name}: no writer here, pulsed by an M-code (configs/linuxcnc/mcodes), a GUI or "
+                f"`halcmd sets {name} 1`", f"net {name} {pin}"]
     if iov2pins.lookup(source) and iov2pins.lookup(source)[1] == "IN":
-        return [f"# {net}: no writer here, pulsed by M150, a GUI or `halcmd sets {net} 1`; iov2 reads it too",
+        return [f"# {net}: no writer here, pulsed by an M-code (configs/linuxcnc/mcodes), a GUI or "
+                f"`halcmd sets {net} 1`; iov2 reads it too",
                 f"net {net} {pin} {source}"]
     return [f"net {net} {source} => {pin}"]
 

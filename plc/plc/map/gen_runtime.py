@@ -30,7 +30,10 @@ def _words(sigs: list[Signal]) -> list[int]:
 
 
 def writable_coils(rmap: RegisterMap) -> list[str]:
-    return ranges(_words([s for s in rmap.signals if s.host_writable and s.table == "coil"]))
+    """Whole bytes: hosts write their command coils by whole bytes (OpenPLC applies FC15 so), and `plc map
+    check` keeps anything else out of those bytes."""
+    coils = [s for s in rmap.signals if s.host_writable and s.table == "coil"]
+    return ranges([a for byte in {s.address // 8 for s in coils} for a in range(8 * byte, 8 * byte + 8)])
 
 
 def writable_registers(rmap: RegisterMap) -> list[str]:
