@@ -2,8 +2,10 @@
 of an echo PLC, with a stand-in for iov2's pins (linuxcnc_fixtures/fake_iov2.py).
 
 Shows what the generated chain promises: the link watch lets iocontrol.0.emc-enable-in up and drops it when
-the PLC stops; tool-prep-number/pocket are latched with their request bit (the settle delay; without it the
-PLC latches the previous number now and then); toolchanger-reason and FaultReason reach HAL signed.
+the PLC stops; every prepare is answered; toolchanger-reason and FaultReason reach HAL signed. Whether
+tool-prep-number/pocket reach the PLC before their request bit depends on the settle delay (settle_s in
+modbus_map/map.toml) covering mb2hal's pace, a timing property: it is measured here and printed, and judged by
+scripts/bench-mb2hal-settle (idle and under load), never by this test.
 
 Needs linuxcnc-uspace (scripts/e2e-linuxcnc installs it) and root for private IPC/PID/mount namespaces
 (`unshare`), so it never meets another LinuxCNC or halrun on the machine; skipped with the reason otherwise."""
@@ -119,5 +121,5 @@ def test_generated_hal_and_mb2hal_carry_the_handshakes_signs_and_link_watch(work
     hal_text = outputs(load_and_check(REPO / "modbus_map" / "map.toml", Diagnostics()))[IOV2_HAL]
     lines = run_chain(work_dir, hal_text, prepares=100)
     print("\n".join(lines))
-    assert [l for l in lines if not l.startswith("ok")] == []
-    assert len(lines) == 8
+    assert [l for l in lines if not l.startswith(("ok", "measure"))] == []
+    assert len(lines) == 8 and [l for l in lines if l.startswith("measure 100 prepares:")]
