@@ -13,6 +13,7 @@ import zlib
 
 from . import ast as A
 from . import types as T
+from .diagnostics import InternalError
 from .sema import Program
 from .stdfuncs import StdFunc
 from .symbols import FuncSym, VarSym
@@ -407,47 +408,63 @@ class Gen:
             self.stmt(s)
 
     def stmt(self, s: A.Stmt) -> None:
+        """One statement, by its kind's `s_<Kind>` method; a kind without one is a compiler bug."""
+        method = getattr(self, "s_" + type(s).__name__, None)
+        if method is None:
+            raise InternalError(s.pos, f"the C generator does not handle the statement {type(s).__name__}")
+        method(s)
+
+    def s_Assign(self, s: A.Assign) -> None:
+        self.w(f"{self.lv(s.target)} = {self.conv_to(s.value, s.target.ty)};")
+
+    def s_CallStmt(self, s: A.CallStmt) -> None:
+        self.call_stmt(s.call)
+
+    def s_If(self, s: A.If) -> None:
         w = self.w
-        if isinstance(s, A.Assign):
-            w(f"{self.lv(s.target)} = {self.conv_to(s.value, s.target.ty)};")
-        elif isinstance(s, A.CallStmt):
-            self.call_stmt(s.call)
-        elif isinstance(s, A.If):
-            for k, (cond, body) in enumerate(s.branches):
-                w(f"{'if' if k == 0 else '} else if'} ({self.ex(cond)}) {{")
-                self.ind += 1
-                self.block(body)
-                self.ind -= 1
-            if s.orelse:
-                w("} else {")
-                self.ind += 1
-                self.block(s.orelse)
-                self.ind -= 1
-            w("}")
-        elif isinstance(s, A.Case):
-            self.case(s)
-        elif isinstance(s, A.For):
-            self.for_stmt(s)
-        elif isinstance(s, A.While):
-            w(f"while ({self.ex(s.cond)}) {{")
+        for k, (cond, body) in enumerate(s.branches):
+            w(f"{'if' if k == 0 else '} else if'} ({self.ex(cond)}) {{")
             self.ind += 1
-            self.block(s.body)
+            self.block(body)
             self.ind -= 1
-            w("}")
-        elif isinstance(s, A.Repeat):
-            w("do {")
+        if s.orelse:
+            w("} else {")
             self.ind += 1
-            self.block(s.body)
+            self.block(s.orelse)
             self.ind -= 1
-            w(f"}} while (!({self.ex(s.cond)}));")
-        elif isinstance(s, A.Exit):
-            w("break;")
-        elif isinstance(s, A.Continue):
-            w("continue;")          # in a FOR loop the C for's step clause still counts the variable on
-        elif isinstance(s, A.Return):
-            w("return RESULT__;" if self.fn is not None else "return;")
-        elif isinstance(s, A.Empty):
-            pass
+        w("}")
+
+    def s_Case(self, s: A.Case) -> None:
+        self.case(s)
+
+    def s_For(self, s: A.For) -> None:
+        self.for_stmt(s)
+
+    def s_While(self, s: A.While) -> None:
+        self.w(f"while ({self.ex(s.cond)}) {{")
+        self.ind += 1
+        self.block(s.body)
+        self.ind -= 1
+        self.w("}")
+
+    def s_Repeat(self, s: A.Repeat) -> None:
+        self.w("do {")
+        self.ind += 1
+        self.block(s.body)
+        self.ind -= 1
+        self.w(f"}} while (!({self.ex(s.cond)}));")
+
+    def s_Exit(self, s: A.Exit) -> None:
+        self.w("break;")
+
+    def s_Continue(self, s: A.Continue) -> None:
+        self.w("continue;")          # in a FOR loop the C for's step clause still counts the variable on
+
+    def s_Return(self, s: A.Return) -> None:
+        self.w("return RESULT__;" if self.fn is not None else "return;")
+
+    def s_Empty(self, s: A.Empty) -> None:
+        pass
 
     def case(self, s: A.Case) -> None:
         self.tmp += 1
@@ -484,7 +501,7 @@ class Gen:
         self.w("}")
 
     def label_value(self, e: A.Expr) -> str:
-        sym = getattr(e, "sym", None)
+        sym = e.sym
         if isinstance(sym, tuple):
             et, v = sym
             return str(et.values.index(v))
@@ -505,7 +522,7 @@ class Gen:
         if isinstance(e, A.Binary):
             a, b = self.const_int(e.left), self.const_int(e.right)
             return {"+": a + b, "-": a - b, "*": a * b}.get(e.op, 0)
-        return 0
+        raise InternalError(e.pos, f"the C generator cannot fold the constant {type(e).__name__}")
 
     def for_stmt(self, s: A.For) -> None:
         v = self.lv(s.var)
@@ -543,7 +560,7 @@ class Gen:
         w = self.w
         inouts = []
         for a in c.args:
-            p = getattr(a, "param", None)
+            p = a.param
             if p is None or a.value is None:
                 continue
             if p.section == "VAR_INPUT":
@@ -567,7 +584,7 @@ class Gen:
         for a, p in inouts:
             w(f"{self.lv(a.value)} = {inst}.{cid(p.name)};")
         for a in c.args:
-            p = getattr(a, "param", None)
+            p = a.param
             if p is None or a.value is None or p.section != "VAR_OUTPUT":
                 continue
             val = f"{inst}.{cid(p.name)}"
@@ -600,8 +617,11 @@ class Gen:
         return self.ex(e)
 
     def ex(self, e: A.Expr) -> str:
-        m = getattr(self, "x_" + type(e).__name__)
-        return m(e)
+        """The C expression of `e`, by its kind's `x_<Kind>` method; a kind without one is a compiler bug."""
+        method = getattr(self, "x_" + type(e).__name__, None)
+        if method is None:
+            raise InternalError(e.pos, f"the C generator does not handle the expression {type(e).__name__}")
+        return method(e)
 
     def x_IntLit(self, e: A.IntLit) -> str:
         return self.int_const(e.value, e.ty)
@@ -641,7 +661,9 @@ class Gen:
 
     def x_EnumLit(self, e: A.EnumLit) -> str:
         et = e.ty
-        return str(et.values.index(e.value)) if isinstance(et, T.EnumType) else "0"
+        if not isinstance(et, T.EnumType):
+            raise InternalError(e.pos, f"enumerated value {e.type_name}#{e.value} reached the C generator untyped")
+        return str(et.values.index(e.value))
 
     def x_Name(self, e: A.Name) -> str:
         sym = e.sym
@@ -658,7 +680,7 @@ class Gen:
             return "RESULT__"
         if isinstance(sym, VarSym):
             return self.var_ref(sym)
-        return "0"
+        raise InternalError(e.pos, f"name {e.name} reached the C generator unresolved")
 
     def x_Member(self, e: A.Member) -> str:
         return f"{self.ex(e.base)}.{cid(e.name)}"
@@ -690,9 +712,6 @@ class Gen:
 
     def x_BitAccess(self, e: A.BitAccess) -> str:
         return f"((uint8_t)((((uint64_t)({self.ex(e.base)})) >> {e.bit}) & 1u))"
-
-    def x_Direct(self, e: A.Direct) -> str:
-        return "0"
 
     def x_Unary(self, e: A.Unary) -> str:
         t = T.resolve_base(e.ty)
@@ -779,7 +798,7 @@ class Gen:
         elif isinstance(tgt, StdFunc):
             expr = self.std_call(c, tgt)
         else:
-            return "0"
+            raise InternalError(c.pos, f"call of {c.func} reached the C generator unresolved")
         en = next((a for a in c.args if a.name == "EN" and not a.output), None)
         if en is not None or eno is not None:
             ct = self.ctype(c.ty)
@@ -788,7 +807,7 @@ class Gen:
             set0 = f"{self.lv(eno.value)} = 0, " if eno is not None else ""
             expr = f"(({cond}) ? ({set1}{expr}) : ({set0}({ct}){{0}}))"
         if c.site >= 0:
-            first = next((a for a in c.args if getattr(a, "param", None) is not None
+            first = next((a for a in c.args if a.param is not None
                           and a.param.section == "VAR_IN_OUT"), None)
             ctx = f"&{self.lv(first.value)}" if first is not None else "NULL"
             expr = f"plc_assert_done({expr}, {c.site}, {ctx})"
@@ -882,7 +901,7 @@ class Gen:
         return f"(({dc})({x}))"
 
     def std_call(self, c: A.Call, f: StdFunc) -> str:
-        args = getattr(c, "std_args", [])
+        args = c.std_args
         t = T.resolve_base(c.ty) if c.ty is not None else T.DINT
         if isinstance(t, T.LiteralType):
             t = T.LINT if t.cat == "int" else T.LREAL
@@ -905,7 +924,7 @@ class Gen:
         if n == "EXPT":
             return f"(({ct})pow((double)({self.ex(args[0])}), (double)({self.ex(args[1])})))"
         if n in ("ADD", "SUB", "MUL", "DIV", "MOD"):
-            if getattr(c, "time_arith", False):
+            if c.time_arith:
                 opmap = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}
                 expr = A.Binary(c.pos, opmap.get(n, "+"), args[0], args[1])
                 expr.ty = T.TIME

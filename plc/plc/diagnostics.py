@@ -23,6 +23,15 @@ class Pos:
 NOWHERE = Pos("<builtin>", 0, 0)
 
 
+class InternalError(Exception):
+    """A compiler bug: a pass met something it does not handle.  Raised, never turned into output."""
+
+    def __init__(self, pos: Pos, message: str) -> None:
+        super().__init__(f"{pos}: internal compiler error: {message}")
+        self.pos = pos
+        self.message = message
+
+
 @dataclass
 class Diagnostic:
     severity: str          # "error" | "warning" | "note"

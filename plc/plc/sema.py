@@ -21,7 +21,7 @@ from functools import reduce
 
 from . import ast as A
 from . import types as T
-from .diagnostics import Diagnostics, Pos
+from .diagnostics import Diagnostics, InternalError, Pos
 from .stdfuncs import STD_FUNCS, conversion
 from .symbols import FuncSym, Scope, VarSym
 from .timelit import decode
@@ -377,7 +377,7 @@ class Analyzer:
         if isinstance(e, A.TimeLit):
             return decode(e.kind, e.text)
         if isinstance(e, A.Name):
-            sym = getattr(e, "sym", None) or self.lookup_const(e.name)
+            sym = e.sym or self.lookup_const(e.name)
             if isinstance(sym, VarSym) and sym.constant and sym.const_value is not None:
                 return sym.const_value
             if isinstance(sym, VarSym) and sym.constant and sym.section == "VAR_EXTERNAL":
@@ -804,6 +804,8 @@ class Analyzer:
                 self.err(s.pos, f"{'EXIT' if isinstance(s, A.Exit) else 'CONTINUE'} outside a loop")
         elif isinstance(s, (A.Return, A.Empty)):
             pass
+        else:
+            raise InternalError(s.pos, f"semantic analysis does not handle the statement {type(s).__name__}")
 
     def condition(self, e: A.Expr, what: str) -> None:
         t = self.expr(e, self.scope, T.BOOL)
@@ -876,7 +878,7 @@ class Analyzer:
                     if isinstance(b, T.ErrorType) or isinstance(lt, T.ErrorType):
                         continue
                     if isinstance(b, T.EnumType):
-                        if not (isinstance(e, (A.Name, A.EnumLit)) and isinstance(getattr(e, "sym", None), tuple)
+                        if not (isinstance(e, (A.Name, A.EnumLit)) and isinstance(e.sym, tuple)
                                 and e.sym[0] is b) and not (isinstance(e, A.EnumLit) and lt is b):
                             self.err(e.pos, f"CASE label must be a value of {b.name}")
                             continue
@@ -1075,8 +1077,7 @@ class Analyzer:
             return self.binary(e, scope, expected)
         if isinstance(e, A.Call):
             return self.call_expr(e, scope, expected)
-        self.err(e.pos, "unsupported expression")
-        return T.ERROR
+        raise InternalError(e.pos, f"semantic analysis does not handle the expression {type(e).__name__}")
 
     def int_lit(self, e: A.IntLit) -> T.Type:
         if e.prefix is None:
