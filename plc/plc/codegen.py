@@ -901,105 +901,13 @@ class Gen:
         return f"(({dc})({x}))"
 
     def std_call(self, c: A.Call, f: StdFunc) -> str:
-        args = c.std_args
+        """A standard function, written by the emitter that stdfuncs keeps beside its signature."""
+        if f.emit is None:
+            raise InternalError(c.pos, f"standard function {f.name} has no C emitter")
         t = T.resolve_base(c.ty) if c.ty is not None else T.DINT
         if isinstance(t, T.LiteralType):
             t = T.LINT if t.cat == "int" else T.LREAL
-        n = f.name
-        ct = self.ctype(t)
-
-        def val(v, tt=None):
-            return self.conv_to(v, tt or t)
-
-        if n == "ABS":
-            x = val(args[0])
-            if isinstance(t, T.Elementary) and t.cat == "int":
-                return f"(({x}) < 0 ? PLC_NEG({ct}, uint{t.bits}_t, {x}) : ({x}))"
-            if isinstance(t, T.Elementary) and t.cat == "real":
-                return f"(({ct})fabs({x}))"
-            return x
-        if n in ("SQRT", "LN", "LOG", "EXP", "SIN", "COS", "TAN", "ASIN", "ACOS", "ATAN"):
-            fn = {"LN": "log", "LOG": "log10"}.get(n, n.lower())
-            return f"(({ct}){fn}((double)({val(args[0])})))"
-        if n == "EXPT":
-            return f"(({ct})pow((double)({self.ex(args[0])}), (double)({self.ex(args[1])})))"
-        if n in ("ADD", "SUB", "MUL", "DIV", "MOD"):
-            if c.time_arith:
-                opmap = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}
-                expr = A.Binary(c.pos, opmap.get(n, "+"), args[0], args[1])
-                expr.ty = T.TIME
-                return self.x_Binary(expr)
-            op = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/", "MOD": "MOD"}[n]
-            acc = args[0]
-            for nxt in args[1:]:
-                b = A.Binary(c.pos, op, acc, nxt)
-                b.ty = t
-                acc = b
-            return self.x_Binary(acc)
-        if n == "MOVE":
-            return self.ex(args[0])
-        if n in ("MIN", "MAX"):
-            self.tmp += 1
-            cmp = "<" if n == "MIN" else ">"
-            xs = [val(a) for a in args]
-            acc = xs[0]
-            for x in xs[1:]:
-                if T.is_elem(t, "string"):
-                    acc = f"(plc_str_cmp({x}, {acc}) {cmp} 0 ? {x} : {acc})"
-                else:
-                    acc = f"plc_{n.lower()}_{self.suffix(t)}({acc}, {x})"
-            return acc
-        if n == "LIMIT":
-            mn, x, mx = (val(a) for a in args)
-            if T.is_elem(t, "string"):
-                return f"(plc_str_cmp({x}, {mn}) < 0 ? {mn} : (plc_str_cmp({x}, {mx}) > 0 ? {mx} : {x}))"
-            return f"plc_max_{self.suffix(t)}({mn}, plc_min_{self.suffix(t)}({x}, {mx}))"
-        if n == "SEL":
-            return f"(({self.ex(args[0])}) ? ({val(args[2])}) : ({val(args[1])}))"
-        if n == "MUX":
-            k = self.ex(args[0])
-            ins = [val(a) for a in args[1:]]
-            expr = self.default_value(t)          # selector out of range: 0, as MATIEC
-            for i in range(len(ins) - 1, -1, -1):
-                expr = f"(({k}) == {i} ? ({ins[i]}) : {expr})"
-            return expr
-        if n in ("SHL", "SHR", "ROL", "ROR"):
-            return f"(({ct})plc_{n.lower()}((uint64_t)({self.ex(args[0])}), (int64_t)({self.ex(args[1])}), {t.bits}))"
-        if n in ("AND", "OR", "XOR"):
-            cop = {"AND": "&", "OR": "|", "XOR": "^"}[n]
-            return f"(({ct})({f' {cop} '.join(val(a) for a in args)}))"
-        if n == "NOT":
-            x = val(args[0])
-            return f"(!{x})" if T.is_elem(t, "bool") else f"(({ct})~{x})"
-        if n in ("GT", "GE", "EQ", "LE", "LT", "NE"):
-            # the comparison functions are the comparison operators
-            op = {"GT": ">", "GE": ">=", "EQ": "=", "LE": "<=", "LT": "<", "NE": "<>"}[n]
-            cmp = A.Binary(c.pos, op, args[0], args[1])
-            cmp.ty = T.BOOL
-            return self.x_Binary(cmp)
-        if n == "LEN":
-            return f"plc_len({self.ex(args[0])})"
-        if n in ("LEFT", "RIGHT"):
-            return f"plc_{n.lower()}({self.ex(args[0])}, (int64_t)({self.ex(args[1])}))"
-        if n == "MID":
-            return f"plc_mid({self.ex(args[0])}, (int64_t)({self.ex(args[1])}), (int64_t)({self.ex(args[2])}))"
-        if n == "CONCAT":
-            acc = self.ex(args[0])
-            for a in args[1:]:
-                acc = f"plc_concat({acc}, {self.ex(a)})"
-            return acc
-        if n == "INSERT":
-            return f"plc_insert({self.ex(args[0])}, {self.ex(args[1])}, (int64_t)({self.ex(args[2])}))"
-        if n == "DELETE":
-            return f"plc_delete({self.ex(args[0])}, (int64_t)({self.ex(args[1])}), (int64_t)({self.ex(args[2])}))"
-        if n == "REPLACE":
-            return (f"plc_replace({self.ex(args[0])}, {self.ex(args[1])}, (int64_t)({self.ex(args[2])}), "
-                    f"(int64_t)({self.ex(args[3])}))")
-        if n == "FIND":
-            return f"plc_find({self.ex(args[0])}, {self.ex(args[1])})"
-        if n == "TRUNC":
-            return f"((int32_t)plc_trunc((double)({self.ex(args[0])})))"
-        return "0"
+        return f.emit(self, c, c.std_args, t)
 
     def suffix(self, t: T.Type) -> str:
         b = T.resolve_base(t)

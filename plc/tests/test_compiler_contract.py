@@ -132,3 +132,20 @@ def test_an_unresolved_expression_stops_code_generation_instead_of_compiling_to_
         generate(res.program)
     assert exc.value.pos == A.Pos("t.st", 6, 4)
     assert "name GO reached the C generator unresolved" in str(exc.value)
+
+
+def test_every_standard_function_carries_its_c_emitter_beside_its_signature():
+    from plc.stdfuncs import STD_FUNCS
+    missing = [name for name, f in STD_FUNCS.items() if f.emit is None]
+    assert missing == []
+
+
+def test_a_standard_function_without_an_emitter_stops_code_generation_at_the_call():
+    res = compile_st(SRC, name="t.st", generate=False)
+    assert res.ok
+    call = main_pou(res.files).body[1].value
+    call.target = dataclasses.replace(call.target, emit=None)
+    with pytest.raises(InternalError) as exc:
+        generate(res.program)
+    assert exc.value.pos == A.Pos("t.st", 9, 6)
+    assert "standard function ABS has no C emitter" in str(exc.value)
