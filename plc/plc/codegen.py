@@ -14,7 +14,7 @@ import zlib
 from . import ast as A
 from . import types as T
 from .diagnostics import InternalError
-from .sema import Program
+from .passes.context import Program
 from .stdfuncs import StdFunc
 from .symbols import FuncSym, VarSym
 

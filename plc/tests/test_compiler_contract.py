@@ -13,7 +13,7 @@ from plc import ast as A
 from plc.codegen import generate
 from plc.diagnostics import Diagnostics, InternalError
 from plc.parser import parse
-from plc.sema import analyze
+from plc.driver import analyze
 
 SRC = """PROGRAM Main
 VAR
