@@ -149,3 +149,28 @@ def test_a_standard_function_without_an_emitter_stops_code_generation_at_the_cal
         generate(res.program)
     assert exc.value.pos == A.Pos("t.st", 9, 6)
     assert "standard function ABS has no C emitter" in str(exc.value)
+
+
+def test_portability_warnings_are_written_only_by_the_portability_module():
+    """The stages record a portability fact by rule name; portability.RULES holds every message and hint."""
+    import re
+    from pathlib import Path
+
+    import plc
+    from plc import portability
+    pkg = Path(plc.__file__).parent
+    writers = sorted(str(p.relative_to(pkg)) for p in pkg.rglob("*.py")
+                     if ".portable(" in p.read_text() and p.name not in ("portability.py", "diagnostics.py"))
+    assert writers == []
+    used = {m.group(1) for p in pkg.rglob("*.py")
+            for m in re.finditer(r'(?:self\.port\([^,]+|portability\.report\([^,]+,[^,]+?), "([a-z-]+)"',
+                                 p.read_text())}
+    assert used and used <= set(portability.RULES), used - set(portability.RULES)
+
+
+def test_a_recorded_portability_fact_becomes_the_rules_warning():
+    res = compile_st("PROGRAM Main\nVAR t : TIME; END_VAR\nt := T#5us;\nEND_PROGRAM\n", name="t.st", generate=False)
+    (w,) = [d for d in res.diags.warnings if d.code == "portability.time-unit"]
+    assert (w.pos.line, w.pos.col) == (3, 6)
+    assert w.message == "portability: 'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC"
+    assert w.hint == "write fractions of ms, e.g. T#1.5ms"

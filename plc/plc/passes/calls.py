@@ -23,8 +23,7 @@ class CallTyping(PassBase):
                 self.err(c.pos, f"'{c.text}' is a variable, not a function")
             return T.ERROR
         if not c.args:
-            self.port(c.pos, "a call with no arguments F() is not accepted by MATIEC",
-                      code="portability.empty-call")
+            self.port(c.pos, "empty-call")
         fs = self.prog.funcs.get(c.func)
         if fs is not None:
             c.target = fs
@@ -111,8 +110,7 @@ class CallTyping(PassBase):
                 elif not T.same_type(at, p.type) and not isinstance(at, T.ErrorType):
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' is {p.type}, the argument is {at}")
                 elif not is_fb and isinstance(a.value, A.Index):
-                    self.port(a.pos, "an array element as a FUNCTION's VAR_IN_OUT breaks OpenPLC's C build",
-                              "copy it to a variable and back", code="portability.inout-element")
+                    self.port(a.pos, "inout-element")
             else:
                 at = self.expr(a.value, self.scope, p.type)
                 self.assign_compat(a.value, at, p.type, a.pos, f"input {p.text}")
@@ -153,8 +151,7 @@ class CallTyping(PassBase):
         if a.name not in (None, "IN"):
             self.err(a.pos, f"{c.text} has no parameter '{a.text}'", "its input is IN")
         if generic:
-            self.port(c.pos, f"generic conversion {c.text} is IEC edition 3; OpenPLC needs <TYPE>_TO_{dst.name}",
-                      code="portability.generic-conversion")
+            self.port(c.pos, "generic-conversion", call=c.text, type=dst.name)
         at = self.expr(a.value, scope, src)
         ab = T.resolve_base(at)
         if isinstance(ab, T.ErrorType):
@@ -170,8 +167,7 @@ class CallTyping(PassBase):
         if c.func in ("TIME_TO_DINT", "DINT_TO_TIME", "TIME_TO_INT", "INT_TO_TIME", "TIME_TO_UDINT",
                       "UDINT_TO_TIME", "TIME_TO_LINT", "LINT_TO_TIME", "TIME_TO_ULINT", "ULINT_TO_TIME",
                       "TIME_TO_UINT", "UINT_TO_TIME", "TIME_TO_SINT", "SINT_TO_TIME", "TIME_TO_USINT", "USINT_TO_TIME"):
-            self.port(c.pos, f"{c.text} counts seconds in OpenPLC's MATIEC (not milliseconds)",
-                      "keep durations as TIME and compare TIME values", code="portability.time-conversion")
+            self.port(c.pos, "time-conversion", call=c.text)
         return dst
 
     # ------------------------------------------------------------ compatibility --

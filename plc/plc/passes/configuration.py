@@ -71,11 +71,9 @@ class ConfigurationPass(PassBase):
                     continue
                 task = None
                 if pi.task is None:
-                    self.port(pi.pos, f"program instance '{pi.text}' has no task: MATIEC rejects it",
-                              "PROGRAM inst WITH task : Type;", code="portability.no-task")
+                    self.port(pi.pos, "no-task", instance=pi.text)
                 if not res.name:
-                    self.port(pi.pos, "TASK and PROGRAM directly in the CONFIGURATION are rejected by MATIEC",
-                              "put them in RESOURCE Res0 ON PLC", code="portability.no-resource")
+                    self.port(pi.pos, "no-resource")
                 if pi.task is not None:
                     task = tasks.get(pi.task)
                     if task is None:

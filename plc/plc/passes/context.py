@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .. import ast as A
+from .. import portability
 from .. import types as T
 from ..diagnostics import Diagnostics, Pos
 from ..symbols import FuncSym, Scope, VarSym
@@ -112,10 +113,11 @@ class PassBase:
     def warn(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
         self.d.warning(pos, msg, hint, code)
 
-    def port(self, pos: Pos, msg: str, hint: str | None = None, code: str = "portability") -> None:
+    def port(self, pos: Pos, rule: str, **details: str) -> None:
+        """Record a portability fact (a rule of portability.RULES) where it was found; built-in files are exempt."""
         if pos.file in self.prog.builtin_files:
             return
-        self.d.portable(pos, msg, hint, code)
+        portability.report(self.d, rule, pos, **details)
 
     def in_builtin(self) -> bool:
         return self.current_pou is not None and self.current_pou.pos.file in self.prog.builtin_files

@@ -71,8 +71,7 @@ class ExpressionTyping(PassBase):
             if n > 126:
                 self.err(e.pos, f"string literal of {n} characters is longer than 126")
             elif n == 126:
-                self.port(e.pos, "a string literal of 126 characters breaks OpenPLC's C build (125 at most)",
-                          code="portability.string-literal")
+                self.port(e.pos, "string-literal")
             return T.STRING
         if isinstance(e, A.TimeLit):
             if e.kind not in TIME_KIND_TYPE:
@@ -87,8 +86,7 @@ class ExpressionTyping(PassBase):
             e.value = v
             low = e.text.lower()
             if e.kind == "TIME" and ("us" in low or "ns" in low):
-                self.port(e.pos, "'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
-                          "write fractions of ms, e.g. T#1.5ms", code="portability.time-unit")
+                self.port(e.pos, "time-unit")
             return TIME_KIND_TYPE[e.kind]
         if isinstance(e, A.EnumLit):
             return self.enum_lit(e)
@@ -99,8 +97,7 @@ class ExpressionTyping(PassBase):
         if isinstance(e, A.Index):
             return self.index(e, scope)
         if isinstance(e, A.BitAccess):
-            self.port(e.pos, "bit access (w.3) is not accepted by OpenPLC's MATIEC", "use SHR/AND",
-                      code="portability.bit-access")
+            self.port(e.pos, "bit-access")
             bt = self.expr(e.base, scope, None)
             b = T.resolve_base(bt)
             if not (isinstance(b, T.Elementary) and b.cat in ("bit", "int", "uint") and b.bits > 1):
@@ -185,8 +182,7 @@ class ExpressionTyping(PassBase):
                 et = enums[0]
             elif isinstance(exp, T.EnumType) and exp in enums:
                 et = exp
-                self.port(e.pos, f"'{e.text}' is a value of several enumerations ({', '.join(x.name for x in enums)}); "
-                          "MATIEC needs it qualified", f"write {et.name}#{e.text}", code="portability.enum-qualify")
+                self.port(e.pos, "enum-qualify", value=e.text, enums=', '.join(x.name for x in enums), enum=et.name)
             else:
                 self.err(e.pos, f"enumeration value '{e.text}' is ambiguous ({', '.join(x.name for x in enums)})",
                          f"qualify it: {enums[0].name}#{e.text}")
@@ -306,7 +302,7 @@ class ExpressionTyping(PassBase):
         if isinstance(lb, T.ErrorType) or isinstance(rb, T.ErrorType):
             return T.ERROR
         if op == "**":
-            self.port(e.pos, "the '**' operator is missing in OpenPLC", "use EXPT(a, b)", code="portability.power")
+            self.port(e.pos, "power")
             if not (T.is_elem(lb, "real") or isinstance(lb, T.LiteralType)):
                 self.err(e.pos, f"'**' needs a REAL or LREAL base, not {lt}")
                 return T.ERROR
@@ -359,8 +355,7 @@ class ExpressionTyping(PassBase):
                 self.err(e.pos, f"cannot compare values of type {lt}")
                 return T.ERROR
             if isinstance(lb, T.EnumType) and op not in ("=", "<>"):
-                self.port(e.pos, f"'{op}' on enumeration values is rejected by MATIEC", "compare with = or <>",
-                          code="portability.enum-order")
+                self.port(e.pos, "enum-order", op=op)
             return T.BOOL
         if op in self.LOGIC:
             if not (isinstance(lb, T.Elementary) and lb.is_bit):

@@ -51,8 +51,7 @@ class ScopePass(PassBase):
             self.err(block.pos, f"{sec} cannot be CONSTANT")
         located = [d for d in block.decls if d.location is not None]
         if located and len(located) != len(block.decls):
-            self.port(block.pos, "a VAR block mixing located and unlocated variables is rejected by MATIEC",
-                      "put the located variables in a VAR block of their own", code="portability.mixed-located")
+            self.port(block.pos, "mixed-located")
         for d in block.decls:
             self.declare_var(d, scope, pou, block)
 
@@ -67,11 +66,9 @@ class ScopePass(PassBase):
         t = self.type_spec(d.spec)
         if isinstance(d.spec, A.SubrangeSpec) and isinstance(t, T.SubrangeType) and d.init is None and t.lo != 0 \
                 and d.section not in ("VAR_IN_OUT", "VAR_EXTERNAL"):
-            self.port(d.pos, f"MATIEC starts an inline subrange variable at 0, not at its lower bound {t.lo}",
-                      "give it an initial value, or declare the subrange as a TYPE", code="portability.subrange-default")
+            self.port(d.pos, "subrange-default", lo=t.lo)
         if isinstance(t, T.PouType) and d.section == "VAR_GLOBAL":
-            self.port(d.pos, "function block instances in VAR_GLOBAL break OpenPLC's C build",
-                      "declare the instance in the PROGRAM", code="portability.global-fb")
+            self.port(d.pos, "global-fb")
         if isinstance(t, T.PouType):
             if t.kind == "PROGRAM":
                 self.err(d.pos, "a PROGRAM cannot be instantiated inside a POU", "instantiate it in a RESOURCE")
@@ -80,8 +77,7 @@ class ScopePass(PassBase):
                 self.err(d.pos, "a FUNCTION cannot contain function block instances")
                 t = T.ERROR
             elif d.section == "VAR_IN_OUT":
-                self.port(d.pos, "a function block instance passed as VAR_IN_OUT is not supported by MATIEC",
-                          code="portability.fb-inout")
+                self.port(d.pos, "fb-inout")
             elif d.section in ("VAR_INPUT", "VAR_OUTPUT"):
                 self.err(d.pos, f"a function block instance cannot be a {d.section}")
                 t = T.ERROR
@@ -163,8 +159,7 @@ class ScopePass(PassBase):
                 self.err(init.pos, f"an array initialiser [...] cannot initialise {t}")
                 return
             if isinstance(T.resolve_base(b.elem), T.StructType):
-                self.port(init.pos, "initialisers of arrays of structures break OpenPLC's C build",
-                          "initialise the elements in code", code="portability.struct-array-init")
+                self.port(init.pos, "struct-array-init")
             count = 0
             elem = b.elem
             for rep, v in init.items:

@@ -161,8 +161,7 @@ class StatementPass(PassBase):
                             self.err(e.pos, "CASE labels must be constants")
                             continue
                         if isinstance(e, A.Name) or (isinstance(e, A.Unary) and isinstance(e.operand, A.Name)):
-                            self.port(e.pos, "a named constant as a CASE label is rejected by MATIEC",
-                                      "write the value as a literal", code="portability.case-constant")
+                            self.port(e.pos, "case-constant")
                         if not (isinstance(T.resolve_base(lt), T.LiteralType) or T.same_type(lt, b)):
                             self.err(e.pos, f"CASE label of type {lt} does not match the selector type {b}")
                             continue
@@ -221,8 +220,7 @@ class StatementPass(PassBase):
         if sym is not None:
             return
         # a function call used as a statement
-        self.port(c.pos, "a FUNCTION call is not a statement in MATIEC",
-                  "use the result: `ok := F(...);`", code="portability.call-statement")
+        self.port(c.pos, "call-statement")
         self.expr(c, self.scope, None)
 
     # -------------------------------------------------------------- FB calls --

@@ -62,8 +62,7 @@ class TypePass(PassBase):
         if name in T.ELEMENTARY:
             if name == "STRING" and ref.length is not None:
                 n = self.const_int(ref.length)
-                self.port(ref.pos, "STRING[n] is not supported by OpenPLC (a bare declaration crashes iec2c)",
-                          "use plain STRING (126 characters)", code="portability.string-length")
+                self.port(ref.pos, "string-length")
                 if n is None or not 1 <= n <= 126:
                     self.err(ref.length.pos, "string length must be a constant between 1 and 126")
                     return T.STRING
@@ -93,23 +92,20 @@ class TypePass(PassBase):
             return self.type_ref(spec)
         if isinstance(spec, A.EnumSpec):
             if name_for is None:
-                self.port(spec.pos, "anonymous enumeration in a variable declaration",
-                          "declare the enumeration in a TYPE block", code="portability.anon-enum")
+                self.port(spec.pos, "anon-enum")
             name = name_for.name if name_for else f"ENUM_{spec.pos.line}_{spec.pos.col}"
             vals = []
             for v, pos, explicit in spec.values:
                 if explicit is not None:
-                    self.port(pos, "enumeration values with explicit numbers are not accepted by MATIEC",
-                              "remove ':= n'", code="portability.enum-value")
+                    self.port(pos, "enum-value")
                 if v in vals:
                     self.err(pos, f"duplicate enumeration value '{v}'")
                     continue
                 if v == "ON":
-                    self.port(pos, "'ON' is reserved in MATIEC and cannot be an enumeration value",
-                              code="portability.enum-on")
+                    self.port(pos, "enum-on")
                 vals.append(v)
             if spec.base is not None:
-                self.port(spec.pos, "enumerations with a base type are IEC edition 3", code="portability.enum-base")
+                self.port(spec.pos, "enum-base")
             et = T.EnumType(name, vals)
             for v in vals:
                 self.prog.enum_values.setdefault(v, []).append(et)
@@ -136,8 +132,7 @@ class TypePass(PassBase):
                     n = e if isinstance(e, A.Name) else e.operand if isinstance(e, A.Unary) else None
                     if isinstance(n, A.Name) and not self.is_external_constant(n.name):
                         # (a VAR_GLOBAL CONSTANT reached through VAR_EXTERNAL CONSTANT is fine with iec2c -a)
-                        self.port(e.pos, "a named constant as an array bound is not accepted by MATIEC",
-                                  "write the bound as a literal", code="portability.array-bound")
+                        self.port(e.pos, "array-bound")
                 lo, hi = self.const_int(lo_e), self.const_int(hi_e)
                 if lo is None or hi is None:
                     self.err(lo_e.pos, "array bounds must be constant integers")
@@ -148,8 +143,7 @@ class TypePass(PassBase):
                 dims.append((lo, hi))
             elem = self.type_spec(spec.elem)
             if isinstance(elem, T.PouType):
-                self.port(spec.pos, "arrays of function block instances are not supported by MATIEC",
-                          code="portability.fb-array")
+                self.port(spec.pos, "fb-array")
                 self.err(spec.pos, "arrays of function block instances are not supported")
                 return T.ERROR
             if isinstance(elem, T.ErrorType):
@@ -161,15 +155,13 @@ class TypePass(PassBase):
             at.cname = f"ARR{len(self.prog.array_types)}"
             self.prog.array_types.append(at)
             if isinstance(T.resolve_base(elem), T.ArrayType):
-                self.port(spec.pos, "arrays of arrays break OpenPLC's C build", "use a 2-D array ARRAY[a..b, c..d]",
-                          code="portability.array-of-array")
+                self.port(spec.pos, "array-of-array")
             if at.count() > 1_000_000:
                 self.err(spec.pos, f"array of {at.count()} elements is too large")
             return at
         if isinstance(spec, A.StructSpec):
             if name_for is None:
-                self.port(spec.pos, "anonymous STRUCT in a variable declaration", "declare it in a TYPE block",
-                          code="portability.anon-struct")
+                self.port(spec.pos, "anon-struct")
             st = T.StructType(name_for.name if name_for else f"STRUCT_{spec.pos.line}_{spec.pos.col}",
                               decl=name_for)
             for m in spec.members:
@@ -178,9 +170,7 @@ class TypePass(PassBase):
                     continue
                 mt = self.type_spec(m.spec)
                 if getattr(mt, "name", "").upper() == m.name.upper():
-                    self.port(m.pos, f"member '{m.text}' is named like its type: OpenPLC's g++ rejects the C "
-                              "that MATIEC makes of it", "give the member another name",
-                              code="portability.member-named-like-type")
+                    self.port(m.pos, "member-named-like-type", member=m.text)
                 if isinstance(mt, T.PouType):
                     self.err(m.pos, "function block instances inside a STRUCT are not supported by MATIEC")
                     mt = T.ERROR
