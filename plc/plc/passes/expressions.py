@@ -50,75 +50,94 @@ class ExpressionTyping(PassBase):
                 self.set_type(e.operand, t)
 
     def _expr(self, e: A.Expr, scope: Scope | None, expected: T.Type | None, lvalue: bool) -> T.Type:
-        if isinstance(e, A.IntLit):
-            return self.int_lit(e)
-        if isinstance(e, A.RealLit):
-            if e.prefix:
-                t = T.ELEMENTARY.get(e.prefix)
-                if t is None or not t.is_real:
-                    self.err(e.pos, f"{e.prefix}# cannot prefix a real literal")
-                    return T.ERROR
-                return t
-            return T.ANY_REAL_LIT
-        if isinstance(e, A.BoolLit):
-            if e.prefix and e.prefix != "BOOL":
-                self.err(e.pos, f"{e.prefix}#{'TRUE' if e.value else 'FALSE'} is not a valid literal")
-            return T.BOOL
-        if isinstance(e, A.StrLit):
-            if e.prefix and e.prefix not in ("STRING",):
-                self.err(e.pos, f"{e.prefix}# cannot prefix a string literal")
-            n = len(e.value.encode("latin-1", "replace"))
-            if n > 126:
-                self.err(e.pos, f"string literal of {n} characters is longer than 126")
-            elif n == 126:
-                self.port(e.pos, "string-literal")
-            return T.STRING
-        if isinstance(e, A.TimeLit):
-            if e.kind not in TIME_KIND_TYPE:
-                self.err(e.pos, f"{e.kind} literals are not supported by MATIEC")
+        """The type of `e`, by its kind's `t_<Kind>` method; a kind without one is a compiler bug."""
+        method = getattr(self, "t_" + type(e).__name__, None)
+        if method is None:
+            raise InternalError(e.pos, f"semantic analysis does not handle the expression {type(e).__name__}")
+        return method(e, scope, expected)
+
+    def t_IntLit(self, e: A.IntLit, scope, expected) -> T.Type:
+        return self.int_lit(e)
+
+    def t_RealLit(self, e: A.RealLit, scope, expected) -> T.Type:
+        if e.prefix:
+            t = T.ELEMENTARY.get(e.prefix)
+            if t is None or not t.is_real:
+                self.err(e.pos, f"{e.prefix}# cannot prefix a real literal")
                 return T.ERROR
-            v = decode(e.kind, e.text)
-            if v is None:
-                self.err(e.pos, f"invalid {e.kind} literal '{e.text}'",
-                         {"TIME": "e.g. T#1s500ms, T#2.5s, T#-5s", "TOD": "e.g. TOD#12:30:00",
-                          "DATE": "e.g. D#2024-01-31", "DT": "e.g. DT#2024-01-31-12:30:00"}[e.kind])
-                return T.ERROR
-            e.value = v
-            low = e.text.lower()
-            if e.kind == "TIME" and ("us" in low or "ns" in low):
-                self.port(e.pos, "time-unit")
-            return TIME_KIND_TYPE[e.kind]
-        if isinstance(e, A.EnumLit):
-            return self.enum_lit(e)
-        if isinstance(e, A.Name):
-            return self.name(e, scope, expected)
-        if isinstance(e, A.Member):
-            return self.member(e, scope)
-        if isinstance(e, A.Index):
-            return self.index(e, scope)
-        if isinstance(e, A.BitAccess):
-            self.port(e.pos, "bit-access")
-            bt = self.expr(e.base, scope, None)
-            b = T.resolve_base(bt)
-            if not (isinstance(b, T.Elementary) and b.cat in ("bit", "int", "uint") and b.bits > 1):
-                if not isinstance(b, T.ErrorType):
-                    self.err(e.pos, f"bit access needs a bit-string or integer variable, not {bt}")
-                return T.ERROR
-            if not (0 <= e.bit < b.bits):
-                self.err(e.pos, f"bit {e.bit} does not exist in {b.name} (0..{b.bits - 1})")
-            return T.BOOL
-        if isinstance(e, A.Direct):
-            return self.direct(e)
-        if isinstance(e, A.Deref):
-            self.err(e.pos, "pointer dereference '^' is not supported")
+            return t
+        return T.ANY_REAL_LIT
+
+    def t_BoolLit(self, e: A.BoolLit, scope, expected) -> T.Type:
+        if e.prefix and e.prefix != "BOOL":
+            self.err(e.pos, f"{e.prefix}#{'TRUE' if e.value else 'FALSE'} is not a valid literal")
+        return T.BOOL
+
+    def t_StrLit(self, e: A.StrLit, scope, expected) -> T.Type:
+        if e.prefix and e.prefix not in ("STRING",):
+            self.err(e.pos, f"{e.prefix}# cannot prefix a string literal")
+        n = len(e.value.encode("latin-1", "replace"))
+        if n > 126:
+            self.err(e.pos, f"string literal of {n} characters is longer than 126")
+        elif n == 126:
+            self.port(e.pos, "string-literal")
+        return T.STRING
+
+    def t_TimeLit(self, e: A.TimeLit, scope, expected) -> T.Type:
+        if e.kind not in TIME_KIND_TYPE:
+            self.err(e.pos, f"{e.kind} literals are not supported by MATIEC")
             return T.ERROR
-        if isinstance(e, A.Unary):
-            return self.unary(e, scope, expected)
-        if isinstance(e, A.Binary):
-            return self.binary(e, scope, expected)
-        if isinstance(e, A.Call):
-            return self.call_expr(e, scope, expected)
-        raise InternalError(e.pos, f"semantic analysis does not handle the expression {type(e).__name__}")
+        v = decode(e.kind, e.text)
+        if v is None:
+            self.err(e.pos, f"invalid {e.kind} literal '{e.text}'",
+                     {"TIME": "e.g. T#1s500ms, T#2.5s, T#-5s", "TOD": "e.g. TOD#12:30:00",
+                      "DATE": "e.g. D#2024-01-31", "DT": "e.g. DT#2024-01-31-12:30:00"}[e.kind])
+            return T.ERROR
+        e.value = v
+        low = e.text.lower()
+        if e.kind == "TIME" and ("us" in low or "ns" in low):
+            self.port(e.pos, "time-unit")
+        return TIME_KIND_TYPE[e.kind]
+
+    def t_EnumLit(self, e: A.EnumLit, scope, expected) -> T.Type:
+        return self.enum_lit(e)
+
+    def t_Name(self, e: A.Name, scope, expected) -> T.Type:
+        return self.name(e, scope, expected)
+
+    def t_Member(self, e: A.Member, scope, expected) -> T.Type:
+        return self.member(e, scope)
+
+    def t_Index(self, e: A.Index, scope, expected) -> T.Type:
+        return self.index(e, scope)
+
+    def t_BitAccess(self, e: A.BitAccess, scope, expected) -> T.Type:
+        self.port(e.pos, "bit-access")
+        bt = self.expr(e.base, scope, None)
+        b = T.resolve_base(bt)
+        if not (isinstance(b, T.Elementary) and b.cat in ("bit", "int", "uint") and b.bits > 1):
+            if not isinstance(b, T.ErrorType):
+                self.err(e.pos, f"bit access needs a bit-string or integer variable, not {bt}")
+            return T.ERROR
+        if not (0 <= e.bit < b.bits):
+            self.err(e.pos, f"bit {e.bit} does not exist in {b.name} (0..{b.bits - 1})")
+        return T.BOOL
+
+    def t_Direct(self, e: A.Direct, scope, expected) -> T.Type:
+        return self.direct(e)
+
+    def t_Deref(self, e: A.Deref, scope, expected) -> T.Type:
+        self.err(e.pos, "pointer dereference '^' is not supported")
+        return T.ERROR
+
+    def t_Unary(self, e: A.Unary, scope, expected) -> T.Type:
+        return self.unary(e, scope, expected)
+
+    def t_Binary(self, e: A.Binary, scope, expected) -> T.Type:
+        return self.binary(e, scope, expected)
+
+    def t_Call(self, e: A.Call, scope, expected) -> T.Type:
+        return self.call_expr(e, scope, expected)
 
     def int_lit(self, e: A.IntLit) -> T.Type:
         if e.prefix is None:
