@@ -113,12 +113,14 @@ class Expr(Node):
 class IntLit(Expr):
     value: int
     prefix: Optional[str] = None     # INT#5 -> "INT"
+    negated: bool = False            # written `-5`: the parser folded the sign into value
 
 
 @dataclass(eq=False)
 class RealLit(Expr):
     value: float
     prefix: Optional[str] = None
+    negated: bool = False            # written `-2.5`: the parser folded the sign into value
 
 
 @dataclass(eq=False)

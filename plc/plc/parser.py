@@ -690,7 +690,7 @@ class Parser:
             operand = self.nested("expression", self.unary)
             op = "NOT" if t.kind == "KEYWORD" else t.value
             if op == "-" and isinstance(operand, (A.IntLit, A.RealLit)) and operand.prefix is None \
-                    and not getattr(operand, "negated", False):
+                    and not operand.negated:
                 operand.value = -operand.value
                 operand.pos = t.pos
                 operand.negated = True

@@ -12,8 +12,8 @@ from harness import compile_st
 from plc import ast as A
 from plc.codegen import generate
 from plc.diagnostics import Diagnostics, InternalError
+from plc.driver import analyze, compile_sources
 from plc.parser import parse
-from plc.driver import analyze
 
 SRC = """PROGRAM Main
 VAR
@@ -174,3 +174,17 @@ def test_a_recorded_portability_fact_becomes_the_rules_warning():
     assert (w.pos.line, w.pos.col) == (3, 6)
     assert w.message == "portability: 'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC"
     assert w.hint == "write fractions of ms, e.g. T#1.5ms"
+
+
+def test_no_stage_hangs_an_undeclared_attribute_on_a_node():
+    """Compiling the project's library and its tests leaves only declared fields on every node."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    res = compile_sources([root / "st_src", root / "iec_tests"], test_build=True)
+    assert res.ok and res.c_text
+    undeclared = set()
+    for f in res.files:
+        for node in A.walk(f):
+            declared = {fl.name for fl in dataclasses.fields(node)}
+            undeclared |= {(type(node).__name__, k) for k in vars(node) if k not in declared}
+    assert undeclared == set()
