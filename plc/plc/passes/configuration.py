@@ -36,7 +36,7 @@ class ConfigurationPass(PassBase):
                 single = None
                 if td.single is not None:
                     st = self.expr(td.single, gscope, T.BOOL)
-                    sym = getattr(td.single, "sym", None)
+                    sym = td.single.sym
                     if not isinstance(td.single, A.Name) or not isinstance(sym, VarSym) or not T.is_elem(st, "bool"):
                         self.err(td.single.pos, "SINGLE needs a BOOL global variable",
                                  "TASK ev(SINGLE := trigger, PRIORITY := 1); with trigger in VAR_GLOBAL")

@@ -86,7 +86,7 @@ class ConstantEval(PassBase):
             busy.discard(name)
 
     def lookup_const(self, name: str):
-        scope = getattr(self, "scope", None)
+        scope = self.scope
         if scope is not None:
             s = scope.lookup(name)
             if s is not None:

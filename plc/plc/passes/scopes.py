@@ -194,7 +194,7 @@ class ScopePass(PassBase):
         if isinstance(b, (T.ArrayType, T.StructType)):
             self.err(init.pos, f"{t} needs an initialiser in {'[...]' if isinstance(b, T.ArrayType) else '(...)'}")
             return
-        saved = getattr(self, "scope", None)
+        saved = self.scope
         ty = self.expr(init, saved, t, for_init=True)
         self.assign_compat(init, ty, t, init.pos, "initial value")
         if not self.is_constant_expr(init):
