@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from .. import ast as A
 from .. import types as T
-from ..diagnostics import Pos
+from ..diagnostics import InternalError, Pos
 from .context import PassBase
 
 
@@ -183,4 +183,4 @@ class TypePass(PassBase):
             self.err(spec.pos, f"{spec.kind} is not supported (MATIEC has no usable pointers)",
                      code="portability.pointer")
             return T.ERROR
-        return T.ERROR
+        raise InternalError(spec.pos, f"the types pass does not handle the type spec {type(spec).__name__}")
