@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Optional
+from typing import Any, Callable, Iterator, Optional
 
 from .diagnostics import InternalError, Pos
 
@@ -432,6 +432,15 @@ def walk(node: Node) -> Iterator[Node]:
         todo.extend(reversed(list(iter_child_nodes(n))))
 
 
+def handler(owner: Any, prefix: str, node: Node, who: str, what: str = "") -> Callable:
+    """`owner`'s method `<prefix><Kind>` for `node`'s kind.  A kind without one is an InternalError at the node:
+    the language grew a node this pass was not taught (MATIEC's ERROR), never a silent skip."""
+    method = getattr(owner, prefix + type(node).__name__, None)
+    if method is None:
+        raise InternalError(node.pos, f"{who} does not handle {what + ' ' if what else ''}{type(node).__name__}")
+    return method
+
+
 class NodeVisitor:
     """`visit(node)` calls `visit_<Kind>(node)`; a kind without a method has its children visited."""
 
@@ -451,8 +460,8 @@ class StrictVisitor(NodeVisitor):
     """A visitor that must know every node kind it is given: an unknown kind is an internal compiler error
     with the node's position (MATIEC stops with ERROR there), never silently ignored."""
 
-    def generic_visit(self, node: Node) -> Any:
-        raise InternalError(node.pos, f"{type(self).__name__} does not handle {type(node).__name__}")
+    def visit(self, node: Node) -> Any:
+        return handler(self, "visit_", node, type(self).__name__)(node)
 
 
 class NodeTransformer(NodeVisitor):

@@ -34,10 +34,7 @@ class ExpressionGen(GenBase):
 
     def ex(self, e: A.Expr) -> str:
         """The C expression of `e`, by its kind's `x_<Kind>` method; a kind without one is a compiler bug."""
-        method = getattr(self, "x_" + type(e).__name__, None)
-        if method is None:
-            raise InternalError(e.pos, f"the C generator does not handle the expression {type(e).__name__}")
-        return method(e)
+        return A.handler(self, "x_", e, "the C generator", "the expression")(e)
 
     def x_IntLit(self, e: A.IntLit) -> str:
         return self.int_const(e.value, e.ty)

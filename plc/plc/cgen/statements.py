@@ -60,10 +60,7 @@ class StatementGen(GenBase):
 
     def stmt(self, s: A.Stmt) -> None:
         """One statement, by its kind's `s_<Kind>` method; a kind without one is a compiler bug."""
-        method = getattr(self, "s_" + type(s).__name__, None)
-        if method is None:
-            raise InternalError(s.pos, f"the C generator does not handle the statement {type(s).__name__}")
-        method(s)
+        A.handler(self, "s_", s, "the C generator", "the statement")(s)
 
     def s_Assign(self, s: A.Assign) -> None:
         self.w(f"{self.lv(s.target)} = {self.conv_to(s.value, s.target.ty)};")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from .. import ast as A
 from .. import types as T
-from ..diagnostics import InternalError, Pos
+from ..diagnostics import Pos
 from ..stdfuncs import STD_FUNCS, conversion
 from .context import PassBase
 
@@ -15,10 +15,7 @@ class DeclarationPass(PassBase):
         self.declared: dict[str, Pos] = {}
         for f in self.files:
             for item in f.items:
-                method = getattr(self, "d_" + type(item).__name__, None)
-                if method is None:
-                    raise InternalError(item.pos, f"the declarations pass does not handle {type(item).__name__}")
-                method(item)
+                A.handler(self, "d_", item, "the declarations pass")(item)
         # POU types are known before any type is resolved (FB instances as struct members are errors)
         for name, pou in self.pou_decls.items():
             if pou.kind in ("FUNCTION_BLOCK", "PROGRAM"):

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from .. import ast as A
 from .. import types as T
-from ..diagnostics import InternalError
 from ..symbols import Scope
 from ..timelit import decode
 from .context import PassBase, TIME_KIND_TYPE
@@ -51,10 +50,7 @@ class ExpressionTyping(PassBase):
 
     def _expr(self, e: A.Expr, scope: Scope | None, expected: T.Type | None, lvalue: bool) -> T.Type:
         """The type of `e`, by its kind's `t_<Kind>` method; a kind without one is a compiler bug."""
-        method = getattr(self, "t_" + type(e).__name__, None)
-        if method is None:
-            raise InternalError(e.pos, f"semantic analysis does not handle the expression {type(e).__name__}")
-        return method(e, scope, expected)
+        return A.handler(self, "t_", e, "semantic analysis", "the expression")(e, scope, expected)
 
     def t_IntLit(self, e: A.IntLit, scope, expected) -> T.Type:
         return self.int_lit(e)

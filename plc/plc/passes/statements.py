@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from .. import ast as A
 from .. import types as T
-from ..diagnostics import InternalError, Pos
+from ..diagnostics import Pos
 from ..symbols import VarSym
 from .context import PassBase, LoopCtx
 
@@ -30,10 +30,7 @@ class StatementPass(PassBase):
 
     def stmt(self, s: A.Stmt) -> None:
         """One statement, by its kind's `s_<Kind>` method; a kind without one is a compiler bug."""
-        method = getattr(self, "s_" + type(s).__name__, None)
-        if method is None:
-            raise InternalError(s.pos, f"semantic analysis does not handle the statement {type(s).__name__}")
-        method(s)
+        A.handler(self, "s_", s, "semantic analysis", "the statement")(s)
 
     def s_Assign(self, s: A.Assign) -> None:
         self.assign(s)
