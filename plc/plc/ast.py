@@ -2,15 +2,33 @@
 
 Every node carries the `Pos` where it starts.  Names are stored upper-case (the
 language is case-insensitive) with the original spelling kept where messages
-need it.  Semantic passes annotate expressions with `ty` (their resolved type)
-and names with `sym` (what they resolve to); the parser leaves both None.
+need it.
+
+Two kinds of fields, as MATIEC's symbol_c has them:
+- syntax fields, set by the parser; the child nodes among them are what
+  `iter_child_nodes` and the visitors walk;
+- annotations, declared with `annotation()`: None until the semantic passes
+  fill them (`ty` the resolved type of an expression, `sym` what a name
+  resolves to, `target` a call's callee, `param` the parameter an argument
+  binds, ...).  They are not in the constructor and never walked.
+
+`NodeVisitor` / `NodeTransformer` walk the declared child fields (pycparser's
+and CPython's `ast` pattern); `StrictVisitor` is for passes that must handle
+every node kind they meet: any other kind is an `InternalError` at the node's
+position, never silently skipped.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Callable, Iterator, Optional
 
-from .diagnostics import Pos
+from .diagnostics import InternalError, Pos
+
+
+def annotation(doc: str) -> Any:
+    """A field a semantic pass fills in (None until then): out of the constructor, never walked."""
+    return field(default=None, init=False, repr=False, compare=False, metadata={"annotation": doc})
 
 
 @dataclass(eq=False)
@@ -86,20 +104,23 @@ Init = Any  # Expr | ArrayInit | StructInit
 # ------------------------------------------------------------------ expressions --
 @dataclass(eq=False)
 class Expr(Node):
-    def __post_init__(self) -> None:
-        self.ty = None           # set by semantic analysis
+    ty: Any = annotation("types.Type of the value (sema: bodies/expressions)")
+    sym: Any = annotation("what a Name / EnumLit / Member resolves to: VarSym, FuncSym, (EnumType, value), "
+                          "'CURRENT_TIME', 'EN', 'ENO' (sema: expressions)")
 
 
 @dataclass(eq=False)
 class IntLit(Expr):
     value: int
     prefix: Optional[str] = None     # INT#5 -> "INT"
+    negated: bool = False            # written `-5`: the parser folded the sign into value
 
 
 @dataclass(eq=False)
 class RealLit(Expr):
     value: float
     prefix: Optional[str] = None
+    negated: bool = False            # written `-2.5`: the parser folded the sign into value
 
 
 @dataclass(eq=False)
@@ -132,10 +153,6 @@ class EnumLit(Expr):
 class Name(Expr):
     name: str
     text: str = ""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.sym = None
 
 
 @dataclass(eq=False)
@@ -190,6 +207,7 @@ class Arg(Node):
     output: bool = False     # `name => target`
     negated: bool = False    # `NOT name => target`
     text: str = ""
+    param: Any = annotation("the callee's VarSym this argument binds (sema: calls)")
 
 
 @dataclass(eq=False)
@@ -197,11 +215,15 @@ class Call(Expr):
     func: str
     args: list[Arg]
     text: str = ""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.target = None       # resolved callee (function or FB instance symbol)
-        self.site = -1           # assertion call site id (test builds)
+    target: Any = annotation("the callee: FuncSym, StdFunc, FB instance VarSym or ('CONV', src, dst) "
+                             "(sema: calls)")
+    site: int = field(default=-1, init=False, repr=False, compare=False,
+                      metadata={"annotation": "assertion call site id, -1 if none (sema: test builds)"})
+    std_args: list = field(default_factory=list, init=False, repr=False, compare=False,
+                           metadata={"annotation": "a standard function's input values in parameter order "
+                                                   "(stdfuncs)"})
+    time_arith: bool = field(default=False, init=False, repr=False, compare=False,
+                             metadata={"annotation": "ADD/SUB/MUL/DIV on TIME operands (stdfuncs)"})
 
 
 # ------------------------------------------------------------------ statements --
@@ -373,3 +395,99 @@ class Configuration(Node):
 class SourceFile(Node):
     path: str
     items: list[Node]        # TypeBlock | Pou | Configuration | VarBlock (global)
+
+
+# -------------------------------------------------------------------- walking --
+def is_annotation(f: dataclasses.Field) -> bool:
+    return "annotation" in f.metadata
+
+
+def child_fields(node: Node) -> Iterator[tuple[str, Any]]:
+    """(name, value) of the node's syntax fields, annotations left out."""
+    for f in dataclasses.fields(node):
+        if not is_annotation(f):
+            yield f.name, getattr(node, f.name)
+
+
+def _nodes_in(value: Any) -> Iterator[Node]:
+    if isinstance(value, Node):
+        yield value
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            yield from _nodes_in(item)
+
+
+def iter_child_nodes(node: Node) -> Iterator[Node]:
+    """The nodes directly under `node`, in field order (lists and tuples such as If.branches are looked into)."""
+    for _name, value in child_fields(node):
+        yield from _nodes_in(value)
+
+
+def walk(node: Node) -> Iterator[Node]:
+    """`node` and every node below it, parents before children."""
+    todo = [node]
+    while todo:
+        n = todo.pop()
+        yield n
+        todo.extend(reversed(list(iter_child_nodes(n))))
+
+
+def handler(owner: Any, prefix: str, node: Node, who: str, what: str = "") -> Callable:
+    """`owner`'s method `<prefix><Kind>` for `node`'s kind.  A kind without one is an InternalError at the node:
+    the language grew a node this pass was not taught (MATIEC's ERROR), never a silent skip."""
+    method = getattr(owner, prefix + type(node).__name__, None)
+    if method is None:
+        raise InternalError(node.pos, f"{who} does not handle {what + ' ' if what else ''}{type(node).__name__}")
+    return method
+
+
+class NodeVisitor:
+    """`visit(node)` calls `visit_<Kind>(node)`; a kind without a method has its children visited."""
+
+    def visit(self, node: Node) -> Any:
+        method = getattr(self, "visit_" + type(node).__name__, None)
+        if method is None:
+            return self.generic_visit(node)
+        return method(node)
+
+    def generic_visit(self, node: Node) -> Any:
+        for child in iter_child_nodes(node):
+            self.visit(child)
+        return None
+
+
+class StrictVisitor(NodeVisitor):
+    """A visitor that must know every node kind it is given: an unknown kind is an internal compiler error
+    with the node's position (MATIEC stops with ERROR there), never silently ignored."""
+
+    def visit(self, node: Node) -> Any:
+        return handler(self, "visit_", node, type(self).__name__)(node)
+
+
+class NodeTransformer(NodeVisitor):
+    """A visitor whose `visit_<Kind>` returns the node that replaces the one visited (None drops it from a
+    list); `generic_visit` rebuilds the children in place."""
+
+    def generic_visit(self, node: Node) -> Any:
+        for name, value in child_fields(node):
+            if isinstance(value, Node):
+                setattr(node, name, self.visit(value))
+            elif isinstance(value, list):
+                setattr(node, name, self._list(value))
+        return node
+
+    def _list(self, items: list) -> list:
+        out = []
+        for item in items:
+            if isinstance(item, Node):
+                new = self.visit(item)
+                if new is not None:
+                    out.append(new)
+            elif isinstance(item, tuple):
+                out.append(tuple(self.visit(x) if isinstance(x, Node) else
+                                 self._list(x) if isinstance(x, list) else x for x in item))
+            elif isinstance(item, list):
+                out.append(self._list(item))
+            else:
+                out.append(item)
+        return out

@@ -1,8 +1,8 @@
-"""The compile pipeline: files -> lexer/parser -> semantic passes -> lint -> C.
+"""The compile pipeline: files -> lexer/parser -> semantic passes -> portability -> C.
 
 Every stage takes the previous stage's output; the AST is the only thing passed
 between them.  `compile_sources` never raises for bad input: problems come back
-as diagnostics.
+as diagnostics.  The semantic passes run in the order SEMANTIC_PASSES names.
 """
 from __future__ import annotations
 
@@ -145,13 +145,33 @@ def deep_recursion(fn):
     return wrapper
 
 
+# The semantic passes in the order they run: (name, Analyzer method, module of plc/plc/passes).
+SEMANTIC_PASSES = (
+    ("declarations", "declare", "declarations"),
+    ("types", "resolve_types", "typedecls"),
+    ("scopes", "build_scopes", "scopes"),
+    ("configuration", "configurations", "configuration"),
+    ("externals", "bind_externals", "configuration"),
+    ("bodies", "check_bodies", "statements"),
+)
+
+
+def analyze(files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[str] | None = None,
+            test_build: bool = False):
+    """The typed program (sema.Program): every semantic pass run over `files`, in SEMANTIC_PASSES order."""
+    from .sema import Analyzer
+    analyzer = Analyzer(files, diags, builtin_files, test_build)
+    for _name, method, _module in SEMANTIC_PASSES:
+        getattr(analyzer, method)()
+    return analyzer.prog
+
+
 @deep_recursion
 def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False, portability: bool = True,
                     target: str | None = None, generate: bool = True,
                     extra_texts: list[tuple[str, str]] | None = None) -> CompileResult:
     from .codegen import generate as gen_c
     from .portability import lint
-    from .sema import analyze
 
     diags = Diagnostics(portability=portability)
     sources = SourceSet()

@@ -11,6 +11,7 @@ import math
 
 from dataclasses import dataclass
 
+from . import portability
 from .diagnostics import Diagnostics, Pos
 
 KEYWORDS = frozenset("""
@@ -106,8 +107,7 @@ class Lexer:
             elif c == "(" and self.peek(1) == "*":
                 self.block_comment()
             elif c == "/" and self.peek(1) == "/":
-                self.diags.portable(self.pos(), "'//' comments are not accepted by MATIEC",
-                                    "use (* ... *)", code="portability.comment")
+                portability.report(self.diags, "comment-line", self.pos())
                 while self.i < len(self.src) and self.peek() != "\n":
                     self.advance()
             elif c == "/" and self.peek(1) == "*":
@@ -134,8 +134,7 @@ class Lexer:
         self.skip_comment("(*", "*)")
 
     def c_comment(self) -> None:
-        self.diags.portable(self.pos(), "'/* */' comments are not accepted by MATIEC", "use (* ... *)",
-                            code="portability.comment")
+        portability.report(self.diags, "comment-block", self.pos())
         self.skip_comment("/*", "*/")
 
     def skip_comment(self, opener: str, closer: str) -> None:
@@ -151,8 +150,7 @@ class Lexer:
 
     def pragma(self) -> None:
         start = self.pos()
-        self.diags.portable(start, "pragma {...} ignored here, but MATIEC pastes it into its C output",
-                            "remove it", code="portability.pragma")
+        portability.report(self.diags, "pragma", start)
         while self.i < len(self.src) and self.peek() != "}":
             self.advance()
         if self.i >= len(self.src):
@@ -269,8 +267,7 @@ class Lexer:
     def string(self, quote: str) -> None:
         start, pos = self.i, self.pos()
         if quote == '"':
-            self.diags.portable(pos, "double-quoted WSTRING literals are not supported by OpenPLC",
-                                code="portability.wstring")
+            portability.report(self.diags, "wstring", pos)
         self.advance()
         out = []
         while True:

@@ -15,6 +15,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .diagnostics import FILE_LINE, Diagnostic, Pos
+
 DEFAULT_CONFIG = Path("configs") / "machine.toml"
 DEFAULT_OUT = Path("st_src") / "app" / "generated" / "FB_MachineConfig.st"
 
@@ -30,16 +32,10 @@ CODE_CHECK = {"not-controlled": "CodeOrderNotControlled", "valid-only": "CodeVal
 
 
 @dataclass
-class Problem:
-    line: int
-    message: str
-
-
-@dataclass
 class Checker:
     path: Path
     text: str
-    problems: list[Problem] = field(default_factory=list)
+    problems: list[Diagnostic] = field(default_factory=list)
 
     def line_of(self, section: str, key: str | None = None) -> int:
         """Line of `key` inside `[section]` (or of the section header), 1 when not found."""
@@ -57,8 +53,12 @@ class Checker:
                 return n
         return 1
 
+    def problem(self, line: int, message: str) -> None:
+        """An error at `line` of the configuration, written `file:line: error: message`."""
+        self.problems.append(Diagnostic("error", Pos(str(self.path), line, 0), message, layout=FILE_LINE))
+
     def error(self, section: str, key: str | None, message: str) -> None:
-        self.problems.append(Problem(self.line_of(section, key), message))
+        self.problem(self.line_of(section, key), message)
 
 
 SCHEMA = {
@@ -81,14 +81,14 @@ def load(path: Path) -> tuple[dict | None, Checker]:
         text = path.read_text()
     except OSError as e:
         ck = Checker(path, "")
-        ck.problems.append(Problem(0, f"cannot read: {e.strerror}"))
+        ck.problem(0, f"cannot read: {e.strerror}")
         return None, ck
     ck = Checker(path, text)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         m = re.search(r"line (\d+)", str(e))
-        ck.problems.append(Problem(int(m.group(1)) if m else 1, f"not valid TOML: {e}"))
+        ck.problem(int(m.group(1)) if m else 1, f"not valid TOML: {e}")
         return None, ck
     for sec, val in data.items():
         if sec not in SCHEMA:
@@ -213,8 +213,8 @@ def generate(data: dict, source: str) -> str:
 
 
 def report(ck: Checker) -> None:
-    for p in ck.problems:
-        print(f"{ck.path}:{p.line}: error: {p.message}", file=sys.stderr)
+    for d in ck.problems:
+        print(d.render(), file=sys.stderr)
 
 
 def check_and_generate(config: Path, out: Path, write: bool, label: str | None = None) -> int:

@@ -12,6 +12,7 @@ parser always terminates.
 from __future__ import annotations
 
 from . import ast as A
+from . import portability
 from .diagnostics import Diagnostics, Pos
 from .lexer import Token, tokenize
 
@@ -158,8 +159,7 @@ class Parser:
         if t.is_kw("CONFIGURATION"):
             return self.configuration()
         if t.is_kw("VAR_GLOBAL"):
-            self.diags.portable(t.pos, "VAR_GLOBAL outside a CONFIGURATION is not accepted by MATIEC",
-                                "declare globals inside CONFIGURATION or RESOURCE", code="portability.global")
+            portability.report(self.diags, "global", t.pos)
             return self.var_block()
         if t.is_kw("INTERFACE", "METHOD"):
             self.diags.error(t.pos, f"{t.value} is not supported (IEC 61131-3 edition 3 / not in MATIEC)",
@@ -690,7 +690,7 @@ class Parser:
             operand = self.nested("expression", self.unary)
             op = "NOT" if t.kind == "KEYWORD" else t.value
             if op == "-" and isinstance(operand, (A.IntLit, A.RealLit)) and operand.prefix is None \
-                    and not getattr(operand, "negated", False):
+                    and not operand.negated:
                 operand.value = -operand.value
                 operand.pos = t.pos
                 operand.negated = True

@@ -1,12 +1,14 @@
-"""Signatures of the IEC standard functions, checked as MATIEC checks them.
+"""The IEC standard functions: signature, type check and C emitter of each, side by side.
 
-Each entry knows its parameter names (for formal calls) and how to type-check a
-call; the C generator emits the call from the resolved argument types.
+Each entry knows its parameter names (for formal calls), how to type-check a
+call (`kind`, as MATIEC checks it) and how to write it in C (`emit`, called by
+the C generator with the call's resolved arguments and result type).
 Conversions (`INT_TO_DINT`, …) are recognised by name in `conversion()`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 from . import ast as A
 from . import types as T
@@ -46,12 +48,17 @@ def conversion(name: str):
     return None
 
 
+# An emitter: (C generator, call, input values in parameter order, result type) -> C expression.
+Emitter = Callable[..., str]
+
+
 @dataclass
 class StdFunc:
     name: str
     kind: str                  # see check()
     params: tuple[str, ...] = ()
     extensible: bool = False
+    emit: Emitter | None = None
 
     # ----------------------------------------------------------------------------------
     def bind(self, an, c: A.Call) -> list[A.Expr] | None:
@@ -297,41 +304,183 @@ class StdFunc:
         return T.DINT
 
 
+# ------------------------------------------------------------------------------ C emitters --
+# Each takes the C generator `g` (for g.ex, g.conv_to, g.ctype, ...), the call, its inputs in parameter
+# order and the call's resolved result type `t`.
+
+def e_abs(g, c, args, t) -> str:
+    x, ct = g.conv_to(args[0], t), g.ctype(t)
+    if isinstance(t, T.Elementary) and t.cat == "int":
+        return f"(({x}) < 0 ? PLC_NEG({ct}, uint{t.bits}_t, {x}) : ({x}))"
+    if isinstance(t, T.Elementary) and t.cat == "real":
+        return f"(({ct})fabs({x}))"
+    return x
+
+
+def e_libm(g, c, args, t) -> str:
+    fn = {"LN": "log", "LOG": "log10"}.get(c.target.name, c.target.name.lower())
+    return f"(({g.ctype(t)}){fn}((double)({g.conv_to(args[0], t)})))"
+
+
+def e_expt(g, c, args, t) -> str:
+    return f"(({g.ctype(t)})pow((double)({g.ex(args[0])}), (double)({g.ex(args[1])})))"
+
+
+ARITH_OPS = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/", "MOD": "MOD"}
+
+
+def e_arith(g, c, args, t) -> str:
+    """The arithmetic functions are the operators: ADD(a, b, c) is written as (a + b) + c."""
+    n = c.target.name
+    if c.time_arith:
+        expr = A.Binary(c.pos, ARITH_OPS[n] if n != "MOD" else "+", args[0], args[1])
+        expr.ty = T.TIME
+        return g.x_Binary(expr)
+    acc = args[0]
+    for nxt in args[1:]:
+        b = A.Binary(c.pos, ARITH_OPS[n], acc, nxt)
+        b.ty = t
+        acc = b
+    return g.x_Binary(acc)
+
+
+def e_move(g, c, args, t) -> str:
+    return g.ex(args[0])
+
+
+def e_minmax(g, c, args, t) -> str:
+    n = c.target.name
+    g.tmp += 1
+    cmp = "<" if n == "MIN" else ">"
+    xs = [g.conv_to(a, t) for a in args]
+    acc = xs[0]
+    for x in xs[1:]:
+        if T.is_elem(t, "string"):
+            acc = f"(plc_str_cmp({x}, {acc}) {cmp} 0 ? {x} : {acc})"
+        else:
+            acc = f"plc_{n.lower()}_{g.suffix(t)}({acc}, {x})"
+    return acc
+
+
+def e_limit(g, c, args, t) -> str:
+    mn, x, mx = (g.conv_to(a, t) for a in args)
+    if T.is_elem(t, "string"):
+        return f"(plc_str_cmp({x}, {mn}) < 0 ? {mn} : (plc_str_cmp({x}, {mx}) > 0 ? {mx} : {x}))"
+    return f"plc_max_{g.suffix(t)}({mn}, plc_min_{g.suffix(t)}({x}, {mx}))"
+
+
+def e_sel(g, c, args, t) -> str:
+    return f"(({g.ex(args[0])}) ? ({g.conv_to(args[2], t)}) : ({g.conv_to(args[1], t)}))"
+
+
+def e_mux(g, c, args, t) -> str:
+    k = g.ex(args[0])
+    ins = [g.conv_to(a, t) for a in args[1:]]
+    expr = g.default_value(t)          # selector out of range: 0, as MATIEC
+    for i in range(len(ins) - 1, -1, -1):
+        expr = f"(({k}) == {i} ? ({ins[i]}) : {expr})"
+    return expr
+
+
+def e_shift(g, c, args, t) -> str:
+    fn = c.target.name.lower()
+    return f"(({g.ctype(t)})plc_{fn}((uint64_t)({g.ex(args[0])}), (int64_t)({g.ex(args[1])}), {t.bits}))"
+
+
+def e_logic(g, c, args, t) -> str:
+    cop = {"AND": "&", "OR": "|", "XOR": "^"}[c.target.name]
+    return f"(({g.ctype(t)})({f' {cop} '.join(g.conv_to(a, t) for a in args)}))"
+
+
+def e_not(g, c, args, t) -> str:
+    x = g.conv_to(args[0], t)
+    return f"(!{x})" if T.is_elem(t, "bool") else f"(({g.ctype(t)})~{x})"
+
+
+def e_compare(g, c, args, t) -> str:
+    """The comparison functions are the comparison operators."""
+    op = {"GT": ">", "GE": ">=", "EQ": "=", "LE": "<=", "LT": "<", "NE": "<>"}[c.target.name]
+    cmp = A.Binary(c.pos, op, args[0], args[1])
+    cmp.ty = T.BOOL
+    return g.x_Binary(cmp)
+
+
+def e_len(g, c, args, t) -> str:
+    return f"plc_len({g.ex(args[0])})"
+
+
+def e_leftright(g, c, args, t) -> str:
+    return f"plc_{c.target.name.lower()}({g.ex(args[0])}, (int64_t)({g.ex(args[1])}))"
+
+
+def e_mid(g, c, args, t) -> str:
+    return f"plc_mid({g.ex(args[0])}, (int64_t)({g.ex(args[1])}), (int64_t)({g.ex(args[2])}))"
+
+
+def e_concat(g, c, args, t) -> str:
+    acc = g.ex(args[0])
+    for a in args[1:]:
+        acc = f"plc_concat({acc}, {g.ex(a)})"
+    return acc
+
+
+def e_insert(g, c, args, t) -> str:
+    return f"plc_insert({g.ex(args[0])}, {g.ex(args[1])}, (int64_t)({g.ex(args[2])}))"
+
+
+def e_delete(g, c, args, t) -> str:
+    return f"plc_delete({g.ex(args[0])}, (int64_t)({g.ex(args[1])}), (int64_t)({g.ex(args[2])}))"
+
+
+def e_replace(g, c, args, t) -> str:
+    return (f"plc_replace({g.ex(args[0])}, {g.ex(args[1])}, (int64_t)({g.ex(args[2])}), "
+            f"(int64_t)({g.ex(args[3])}))")
+
+
+def e_find(g, c, args, t) -> str:
+    return f"plc_find({g.ex(args[0])}, {g.ex(args[1])})"
+
+
+def e_trunc(g, c, args, t) -> str:
+    return f"((int32_t)plc_trunc((double)({g.ex(args[0])})))"
+
+
+# ---------------------------------------------------------------------------------- table --
 def _table() -> dict[str, StdFunc]:
     t: dict[str, StdFunc] = {}
     for n in ("ABS",):
-        t[n] = StdFunc(n, "num1", ("IN",))
+        t[n] = StdFunc(n, "num1", ("IN",), emit=e_abs)
     for n in ("SQRT", "LN", "LOG", "EXP", "SIN", "COS", "TAN", "ASIN", "ACOS", "ATAN"):
-        t[n] = StdFunc(n, "real1", ("IN",))
-    t["ADD"] = StdFunc("ADD", "arith", ("IN1", "IN2"), extensible=True)
-    t["MUL"] = StdFunc("MUL", "arith", ("IN1", "IN2"), extensible=True)
-    t["SUB"] = StdFunc("SUB", "arith", ("IN1", "IN2"))
-    t["DIV"] = StdFunc("DIV", "arith", ("IN1", "IN2"))
-    t["MOD"] = StdFunc("MOD", "arith", ("IN1", "IN2"))
-    t["EXPT"] = StdFunc("EXPT", "expt", ("IN1", "IN2"))
-    t["MOVE"] = StdFunc("MOVE", "move", ("IN",))
-    t["MIN"] = StdFunc("MIN", "minmax", ("IN1", "IN2"), extensible=True)
-    t["MAX"] = StdFunc("MAX", "minmax", ("IN1", "IN2"), extensible=True)
-    t["LIMIT"] = StdFunc("LIMIT", "limit", ("MN", "IN", "MX"))
-    t["SEL"] = StdFunc("SEL", "sel", ("G", "IN0", "IN1"))
-    t["MUX"] = StdFunc("MUX", "mux", ("K", "IN0", "IN1"), extensible=True)
+        t[n] = StdFunc(n, "real1", ("IN",), emit=e_libm)
+    t["ADD"] = StdFunc("ADD", "arith", ("IN1", "IN2"), extensible=True, emit=e_arith)
+    t["MUL"] = StdFunc("MUL", "arith", ("IN1", "IN2"), extensible=True, emit=e_arith)
+    t["SUB"] = StdFunc("SUB", "arith", ("IN1", "IN2"), emit=e_arith)
+    t["DIV"] = StdFunc("DIV", "arith", ("IN1", "IN2"), emit=e_arith)
+    t["MOD"] = StdFunc("MOD", "arith", ("IN1", "IN2"), emit=e_arith)
+    t["EXPT"] = StdFunc("EXPT", "expt", ("IN1", "IN2"), emit=e_expt)
+    t["MOVE"] = StdFunc("MOVE", "move", ("IN",), emit=e_move)
+    t["MIN"] = StdFunc("MIN", "minmax", ("IN1", "IN2"), extensible=True, emit=e_minmax)
+    t["MAX"] = StdFunc("MAX", "minmax", ("IN1", "IN2"), extensible=True, emit=e_minmax)
+    t["LIMIT"] = StdFunc("LIMIT", "limit", ("MN", "IN", "MX"), emit=e_limit)
+    t["SEL"] = StdFunc("SEL", "sel", ("G", "IN0", "IN1"), emit=e_sel)
+    t["MUX"] = StdFunc("MUX", "mux", ("K", "IN0", "IN1"), extensible=True, emit=e_mux)
     for n in ("SHL", "SHR", "ROL", "ROR"):
-        t[n] = StdFunc(n, "shift", ("IN", "N"))
+        t[n] = StdFunc(n, "shift", ("IN", "N"), emit=e_shift)
     for n in ("AND", "OR", "XOR"):
-        t[n] = StdFunc(n, "logic", ("IN1", "IN2"), extensible=True)
-    t["NOT"] = StdFunc("NOT", "not", ("IN",))
+        t[n] = StdFunc(n, "logic", ("IN1", "IN2"), extensible=True, emit=e_logic)
+    t["NOT"] = StdFunc("NOT", "not", ("IN",), emit=e_not)
     for n in ("GT", "GE", "EQ", "LE", "LT", "NE"):
-        t[n] = StdFunc(n, "compare", ("IN1", "IN2"))
-    t["LEN"] = StdFunc("LEN", "len", ("IN",))
-    t["LEFT"] = StdFunc("LEFT", "strint", ("IN", "L"))
-    t["RIGHT"] = StdFunc("RIGHT", "strint", ("IN", "L"))
-    t["MID"] = StdFunc("MID", "mid", ("IN", "L", "P"))
-    t["CONCAT"] = StdFunc("CONCAT", "concat", ("IN1", "IN2"), extensible=True)
-    t["INSERT"] = StdFunc("INSERT", "insert", ("IN1", "IN2", "P"))
-    t["DELETE"] = StdFunc("DELETE", "delete", ("IN", "L", "P"))
-    t["REPLACE"] = StdFunc("REPLACE", "replace", ("IN1", "IN2", "L", "P"))
-    t["FIND"] = StdFunc("FIND", "find", ("IN1", "IN2"))
-    t["TRUNC"] = StdFunc("TRUNC", "trunc", ("IN",))
+        t[n] = StdFunc(n, "compare", ("IN1", "IN2"), emit=e_compare)
+    t["LEN"] = StdFunc("LEN", "len", ("IN",), emit=e_len)
+    t["LEFT"] = StdFunc("LEFT", "strint", ("IN", "L"), emit=e_leftright)
+    t["RIGHT"] = StdFunc("RIGHT", "strint", ("IN", "L"), emit=e_leftright)
+    t["MID"] = StdFunc("MID", "mid", ("IN", "L", "P"), emit=e_mid)
+    t["CONCAT"] = StdFunc("CONCAT", "concat", ("IN1", "IN2"), extensible=True, emit=e_concat)
+    t["INSERT"] = StdFunc("INSERT", "insert", ("IN1", "IN2", "P"), emit=e_insert)
+    t["DELETE"] = StdFunc("DELETE", "delete", ("IN", "L", "P"), emit=e_delete)
+    t["REPLACE"] = StdFunc("REPLACE", "replace", ("IN1", "IN2", "L", "P"), emit=e_replace)
+    t["FIND"] = StdFunc("FIND", "find", ("IN1", "IN2"), emit=e_find)
+    t["TRUNC"] = StdFunc("TRUNC", "trunc", ("IN",), emit=e_trunc)
     return t
 
 

@@ -6,7 +6,7 @@ from decimal import Decimal
 
 import pytest
 
-from plc.seq.diagnostics import Diagnostic, Diagnostics, Severity
+from plc.seq.diagnostics import Diagnostics, Severity, seq_diagnostic
 from plc.seq.lexer import split_words, strip_comment
 from plc.seq.model import (Delay, Feedrate, HomeRotary, Message, MoveAbs, MoveToEdge, Number, Out, PositionRotary,
                            PVar, QVar, Spindle, ToolQVar, WaitIn)
@@ -127,7 +127,7 @@ def test_rendered_diagnostic_shows_the_line_and_a_caret_under_the_token():
 
 
 def test_diagnostic_without_position_renders_file_only():
-    d = Diagnostic(Severity.ERROR, "x.seq", 0, 0, "the Put Tool sequence has no commands")
+    d = seq_diagnostic(Severity.ERROR, "x.seq", 0, 0, "the Put Tool sequence has no commands")
     assert d.render() == "x.seq: error: the Put Tool sequence has no commands"
 
 

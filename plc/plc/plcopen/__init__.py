@@ -12,7 +12,6 @@ and the configuration become ST; the compiler proper never sees XML.
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,11 +97,10 @@ class Translation:
         if not isinstance(node, A.Node) or id(node) in seen:
             return
         seen.add(id(node))
-        for f in dataclasses.fields(node):
-            value = getattr(node, f.name)
+        for name, value in A.child_fields(node):
             if isinstance(value, Pos):
                 if value.file == self.st_name:
-                    setattr(node, f.name, self.where(value)[0])
+                    setattr(node, name, self.where(value)[0])
             else:
                 self._move(value, seen)
 

@@ -1,7 +1,8 @@
 """Diagnostics of the sequence tools: collected, never thrown one at a time.
 
-Every problem found in a sequence file or a sequence-set index is a `Diagnostic` with its file, 1-based line and
-column, a message and an optional hint. `render` prints it the way compilers do:
+Every problem found in a sequence file or a sequence-set index is the toolchain's one `Diagnostic`
+(plc/plc/diagnostics.py) with its file, 1-based line and column, a message and an optional hint. `render` prints
+it the way compilers do:
 
     put.seq:3:1: error: unknown command 'MOVEABZ'
         MOVEABZ Z-5
@@ -11,39 +12,15 @@ column, a message and an optional hint. `render` prints it the way compilers do:
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass, field
 
-
-class Severity(enum.Enum):
-    ERROR = "error"
-    WARNING = "warning"
+from ..diagnostics import SEQ, Diagnostic, Pos, Severity
 
 
-@dataclass(frozen=True)
-class Diagnostic:
-    severity: Severity
-    file: str
-    line: int  # 1-based; 0 when the problem concerns the file as a whole
-    col: int  # 1-based; 0 when no column applies
-    message: str
-    hint: str = ""
-    source_line: str = ""  # the offending line, printed under the message
-    width: int = 1  # how many characters the caret underlines
-
-    def render(self) -> str:
-        where = self.file
-        if self.line > 0:
-            where += f":{self.line}"
-            if self.col > 0:
-                where += f":{self.col}"
-        text = f"{where}: {self.severity.value}: {self.message}"
-        if self.source_line and self.col > 0:
-            shown = self.source_line.expandtabs(1).rstrip("\n")
-            text += f"\n    {shown}\n    {' ' * (self.col - 1)}^{'~' * max(0, self.width - 1)}"
-        if self.hint:
-            text += f"\n  hint: {self.hint}"
-        return text
+def seq_diagnostic(severity: Severity, file: str, line: int, col: int, message: str, hint: str = "",
+                   source_line: str = "", width: int = 1) -> Diagnostic:
+    """The shared Diagnostic, written the sequence tools' way (a zero line or column left out)."""
+    return Diagnostic(severity, Pos(file, line, col), message, hint, None, source_line, width, SEQ)
 
 
 @dataclass
@@ -59,25 +36,25 @@ class Diagnostics:
 
     def error(self, file: str, line: int, col: int, message: str, *, hint: str = "",
               source_line: str = "", width: int = 1) -> None:
-        self.add(Diagnostic(Severity.ERROR, file, line, col, message, hint, source_line, width))
+        self.add(seq_diagnostic(Severity.ERROR, file, line, col, message, hint, source_line, width))
 
     def warning(self, file: str, line: int, col: int, message: str, *, hint: str = "",
                 source_line: str = "", width: int = 1) -> None:
-        self.add(Diagnostic(Severity.WARNING, file, line, col, message, hint, source_line, width))
+        self.add(seq_diagnostic(Severity.WARNING, file, line, col, message, hint, source_line, width))
 
     def has_errors_in(self, file: str) -> bool:
-        return any(d.severity is Severity.ERROR and d.file == file for d in self.items)
+        return any(d.severity == Severity.ERROR and d.file == file for d in self.items)
 
     @property
     def errors(self) -> list[Diagnostic]:
-        return [d for d in self.items if d.severity is Severity.ERROR]
+        return [d for d in self.items if d.severity == Severity.ERROR]
 
     @property
     def warnings(self) -> list[Diagnostic]:
         return [d for d in self.items if d.severity is Severity.WARNING]
 
     def has_errors(self) -> bool:
-        return any(d.severity is Severity.ERROR for d in self.items)
+        return any(d.severity == Severity.ERROR for d in self.items)
 
     def sorted(self) -> list[Diagnostic]:
         """Files in the order they were first reported, then line and column; discovery order breaks ties."""

@@ -1,0 +1,201 @@
+"""Expressions: one `x_<Kind>` method per expression kind; variable references; assignment conversions.
+"""
+from __future__ import annotations
+
+from .. import ast as A
+from .. import types as T
+from ..diagnostics import InternalError
+from ..symbols import FuncSym, VarSym
+from .base import GenBase, cid, c_string, c_compare
+
+
+class ExpressionGen(GenBase):
+    # -------------------------------------------------------------- expressions --
+    def var_ref(self, sym: VarSym) -> str:
+        """C lvalue of a variable visible in the current POU."""
+        name = cid(sym.name)
+        if sym.section == "VAR_EXTERNAL":
+            g = sym.global_sym
+            if g is None:
+                return f"G_{name}"
+            return f"(*G_{name})" if g.location is not None else f"G_{name}"
+        if sym.section == "VAR_GLOBAL":
+            return f"(*G_{name})" if sym.location is not None else f"G_{name}"
+        if self.fn is not None:
+            if sym.section in ("VAR_IN_OUT", "VAR_OUTPUT"):
+                return f"(*{name})"
+            return name
+        if sym.location is not None:
+            return f"(*self->{name})"
+        return f"self->{name}"
+
+    def lv(self, e: A.Expr) -> str:
+        return self.ex(e)
+
+    def ex(self, e: A.Expr) -> str:
+        """The C expression of `e`, by its kind's `x_<Kind>` method; a kind without one is a compiler bug."""
+        return A.handler(self, "x_", e, "the C generator", "the expression")(e)
+
+    def x_IntLit(self, e: A.IntLit) -> str:
+        return self.int_const(e.value, e.ty)
+
+    def int_const(self, v: int, t) -> str:
+        b = T.resolve_base(t) if t is not None else T.DINT
+        if isinstance(b, T.Elementary) and b.cat == "real":
+            return f"(({b.ctype}){float(v)!r})"
+        if isinstance(b, T.Elementary) and b.cat in ("uint", "bit", "bool"):
+            return f"(({b.ctype}){v & ((1 << max(b.bits, 1)) - 1)}ULL)"
+        ct = b.ctype if isinstance(b, T.Elementary) else "int64_t"
+        if v == -(1 << 63):
+            return f"(({ct})INT64_MIN)"
+        if v < -(1 << 63) or v >= (1 << 64):
+            v = v & ((1 << 64) - 1)
+        if v >= (1 << 63):
+            return f"(({ct}){v}ULL)"
+        return f"(({ct}){v}LL)"
+
+    def x_RealLit(self, e: A.RealLit) -> str:
+        b = T.resolve_base(e.ty) if e.ty is not None else T.LREAL
+        ct = b.ctype if isinstance(b, T.Elementary) and b.cat == "real" else "double"
+        v = repr(float(e.value))
+        if v in ("inf", "-inf", "nan"):
+            v = {"inf": "INFINITY", "-inf": "(-INFINITY)", "nan": "NAN"}[v]
+        return f"(({ct}){v})"
+
+    def x_BoolLit(self, e: A.BoolLit) -> str:
+        return "1" if e.value else "0"
+
+    def x_StrLit(self, e: A.StrLit) -> str:
+        raw = e.value.encode("latin-1", "replace")
+        return f"plc_str({c_string(e.value)}, {min(len(raw), 126)})"
+
+    def x_TimeLit(self, e: A.TimeLit) -> str:
+        return f"((int64_t){e.value}LL)"
+
+    def x_EnumLit(self, e: A.EnumLit) -> str:
+        et = e.ty
+        if not isinstance(et, T.EnumType):
+            raise InternalError(e.pos, f"enumerated value {e.type_name}#{e.value} reached the C generator untyped")
+        return str(et.values.index(e.value))
+
+    def x_Name(self, e: A.Name) -> str:
+        sym = e.sym
+        if isinstance(sym, tuple):
+            et, v = sym
+            return str(et.values.index(v))
+        if sym == "CURRENT_TIME":
+            return "plc_clock"
+        if sym == "ENO":
+            return "(*ENO__)" if self.fn is not None else "self->ENO"
+        if sym == "EN":
+            return "((uint8_t)1)" if self.fn is not None else "self->EN"
+        if isinstance(sym, FuncSym):
+            return "RESULT__"
+        if isinstance(sym, VarSym):
+            return self.var_ref(sym)
+        raise InternalError(e.pos, f"name {e.name} reached the C generator unresolved")
+
+    def x_Member(self, e: A.Member) -> str:
+        return f"{self.ex(e.base)}.{cid(e.name)}"
+
+    def x_Index(self, e: A.Index) -> str:
+        base = self.ex(e.base)
+        t = T.resolve_base(e.base.ty)
+        out = base
+        idx = list(e.indices)
+        while idx and isinstance(t, T.ArrayType):
+            subs = []
+            for (lo, hi), i in zip(t.dims, idx):
+                cv = self.const_value(i)
+                if cv is not None and lo <= cv <= hi:
+                    subs.append(f"[{cv - lo}]")
+                else:
+                    subs.append(f"[plc_idx((int64_t)({self.ex(i)}), {lo}, {hi}, {self.site(i.pos)})]")
+            out = f"{out}.e{''.join(subs)}"
+            idx = idx[len(t.dims):]
+            t = T.resolve_base(t.elem)
+        return out
+
+    def const_value(self, e):
+        if isinstance(e, A.IntLit):
+            return e.value
+        if isinstance(e, A.Name) and isinstance(e.sym, VarSym) and e.sym.constant and isinstance(e.sym.const_value, int):
+            return e.sym.const_value
+        return None
+
+    def x_BitAccess(self, e: A.BitAccess) -> str:
+        return f"((uint8_t)((((uint64_t)({self.ex(e.base)})) >> {e.bit}) & 1u))"
+
+    def x_Unary(self, e: A.Unary) -> str:
+        t = T.resolve_base(e.ty)
+        x = self.conv_to(e.operand, t) if not isinstance(t, T.LiteralType) else self.ex(e.operand)
+        if e.op == "NOT":
+            if isinstance(t, T.Elementary) and t.cat == "bool":
+                return f"(!{x})"
+            return f"(({self.ctype(t)})~{x})"
+        if e.op == "+":
+            return x
+        if isinstance(t, T.Elementary) and t.cat in ("int", "uint", "time"):
+            return f"PLC_NEG({t.ctype}, uint{t.bits}_t, {x})"
+        return f"(-{x})"
+
+    def x_Binary(self, e: A.Binary) -> str:
+        op = e.op
+        lt, rt = T.resolve_base(e.left.ty), T.resolve_base(e.right.ty)
+        if op in ("=", "<>", "<", ">", "<=", ">="):
+            cop = {"=": "==", "<>": "!="}.get(op, op)
+            if T.is_elem(lt, "string") or isinstance(lt, T.StringType):
+                return f"(plc_str_cmp({self.ex(e.left)}, {self.ex(e.right)}) {cop} 0)"
+            return c_compare(self.ex(e.left), cop, self.ex(e.right))
+        t = T.resolve_base(e.ty)
+        if isinstance(t, T.LiteralType):
+            t = T.LINT if t.cat == "int" else T.LREAL
+        a, b = self.ex(e.left), self.ex(e.right)
+        if op in ("AND", "OR") and isinstance(t, T.Elementary) and t.cat == "bool":
+            # MATIEC emits && and || for BOOL: the right operand is not evaluated when the left decides
+            return f"((uint8_t)({a} {'&&' if op == 'AND' else '||'} {b}))"
+        if op in ("AND", "OR", "XOR"):
+            cop = {"AND": "&", "OR": "|", "XOR": "^"}[op]
+            return f"(({self.ctype(t)})({a} {cop} {b}))"
+        if op == "**":
+            return f"(({t.ctype})pow((double)({a}), (double)({b})))"
+        if isinstance(t, T.Elementary) and t.cat in ("time", "tod", "dt", "date"):
+            if op in ("+", "-") and isinstance(lt, T.Elementary) and isinstance(rt, T.Elementary) and \
+                    lt.cat in ("time", "tod", "dt", "date") and rt.cat in ("time", "tod", "dt", "date"):
+                return f"PLC_{'ADD' if op == '+' else 'SUB'}(int64_t, uint64_t, {a}, {b})"
+            if op == "*":
+                tv, k, kt = (a, b, rt) if T.is_elem(lt, "time") else (b, a, lt)
+                if T.is_elem(kt, "real"):
+                    return f"plc_time_mul({tv}, (double)({k}))"
+                return f"plc_time_muli({tv}, (int64_t)({k}))"
+            if op == "/":
+                if T.is_elem(rt, "real"):
+                    return f"plc_time_divr({a}, (double)({b}))"
+                return f"plc_time_divi({a}, (int64_t)({b}), {self.site(e.pos)})"
+        if isinstance(t, T.Elementary) and t.cat in ("int", "uint"):
+            u = f"uint{t.bits}_t"
+            if op == "+":
+                return f"PLC_ADD({t.ctype}, {u}, {a}, {b})"
+            if op == "-":
+                return f"PLC_SUB({t.ctype}, {u}, {a}, {b})"
+            if op == "*":
+                return f"PLC_MUL({t.ctype}, {u}, {a}, {b})"
+            suffix = ("i" if t.cat == "int" else "u") + str(t.bits)
+            if op == "/":
+                return f"plc_div_{suffix}({a}, {b}, {self.site(e.pos)})"
+            if op == "MOD":
+                return f"plc_mod_{suffix}({a}, {b})"
+        if isinstance(t, T.Elementary) and t.cat == "real":
+            cop = {"+": "+", "-": "-", "*": "*", "/": "/"}.get(op, "+")
+            return f"(({t.ctype})({a} {cop} {b}))"
+        return f"({a} {op} {b})"
+
+    def conv_to(self, e: A.Expr, t: T.Type) -> str:
+        """The C value of `e`, as type `t` (assignment context; types already checked)."""
+        x = self.ex(e)
+        dst, src = T.resolve_base(t), T.resolve_base(e.ty)
+        if isinstance(t, T.StringType):
+            return f"plc_str_limit({x}, {t.length})"
+        if isinstance(dst, T.Elementary) and isinstance(src, T.Elementary) and dst is not src:
+            return f"(({dst.ctype})({x}))"
+        return x

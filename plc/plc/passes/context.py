@@ -1,0 +1,123 @@
+"""What the semantic passes share: the `Program` they build (the tables the C generator reads), the
+records of a configuration, and `PassBase`, the shared state and diagnostic helpers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .. import ast as A
+from .. import portability
+from .. import types as T
+from ..diagnostics import Diagnostics, Pos
+from ..symbols import FuncSym, Scope, VarSym
+
+LOCATION_SIZES = {"X": 1, "B": 8, "W": 16, "D": 32, "L": 64}
+LOCATED_OK = {
+    "X": ("BOOL",),
+    "B": ("BYTE", "SINT", "USINT"),
+    "W": ("WORD", "INT", "UINT"),
+    "D": ("DWORD", "DINT", "UDINT", "REAL"),
+    "L": ("LWORD", "LINT", "ULINT", "LREAL"),
+}
+TIME_KIND_TYPE = {"TIME": T.TIME, "TOD": T.TOD, "DATE": T.DATE, "DT": T.DT}
+
+
+@dataclass(eq=False)
+class TaskInfo:
+    name: str
+    interval_ns: int
+    priority: int
+    pos: Pos
+    every: int = 1
+    single: object = None      # VarSym of the BOOL global whose rising edge runs the task (SINGLE)
+
+
+@dataclass(eq=False)
+class InstanceInfo:
+    name: str
+    type: T.PouType
+    task: TaskInfo | None
+    resource: str
+    pos: Pos
+    cname: str = ""
+
+
+@dataclass(eq=False)
+class ConfigInfo:
+    name: str
+    decl: A.Configuration
+    globals: dict[str, VarSym] = field(default_factory=dict)
+    tasks: list[TaskInfo] = field(default_factory=list)
+    instances: list[InstanceInfo] = field(default_factory=list)
+    base_tick_ns: int = 0
+    resources: list[str] = field(default_factory=list)
+
+
+@dataclass(eq=False)
+class Site:
+    pos: Pos
+    pou: str
+
+
+@dataclass(eq=False)
+class Program:
+    files: list[A.SourceFile]
+    types: dict[str, T.Type] = field(default_factory=dict)
+    type_order: list[str] = field(default_factory=list)
+    pous: dict[str, T.PouType] = field(default_factory=dict)      # FBs and PROGRAMs
+    funcs: dict[str, FuncSym] = field(default_factory=dict)
+    enum_values: dict[str, list[T.EnumType]] = field(default_factory=dict)
+    type_inits: dict[int, object] = field(default_factory=dict)   # id(type) -> TYPE-level initial value
+    configs: list[ConfigInfo] = field(default_factory=list)
+    sites: list[Site] = field(default_factory=list)
+    array_types: list[T.ArrayType] = field(default_factory=list)
+    builtin_files: set[str] = field(default_factory=set)
+
+    def site(self, pos: Pos, pou: str) -> int:
+        self.sites.append(Site(pos, pou))
+        return len(self.sites) - 1
+
+
+class LoopCtx:
+    def __init__(self) -> None:
+        self.loop_depth = 0
+        self.for_vars: list[VarSym] = []
+
+
+class PassBase:
+    """The state every semantic pass shares (one object: the passes are mixins of sema.Analyzer) and
+    the diagnostic helpers."""
+
+    def __init__(self, files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[str] | None = None,
+                 test_build: bool = False):
+        self.files = files
+        self.d = diags
+        self.prog = Program(files)
+        self.prog.builtin_files = builtin_files or set()
+        self.type_decls: dict[str, A.TypeDecl] = {}
+        self.pou_decls: dict[str, A.Pou] = {}
+        self.resolving: set[str] = set()
+        self.current_pou: A.Pou | None = None
+        self.test_build = test_build
+        self.global_scope: dict[str, VarSym] = {}
+        self.locations: dict[tuple, A.VarDecl] = {}      # (scope, (area, size, parts)) -> first declaration
+        self.output_owner: dict[tuple, tuple[str, A.VarDecl, str]] = {}   # %Q address -> first scope
+        # where the bodies pass is: the POU's FuncSym (FUNCTIONs), its scope, its loop nesting
+        self.func: FuncSym | None = None
+        self.scope: Scope | None = None
+        self.loop = LoopCtx()
+
+    def err(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
+        self.d.error(pos, msg, hint, code)
+
+    def warn(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
+        self.d.warning(pos, msg, hint, code)
+
+    def port(self, pos: Pos, rule: str, **details: str) -> None:
+        """Record a portability fact (a rule of portability.RULES) where it was found; built-in files are exempt."""
+        if pos.file in self.prog.builtin_files:
+            return
+        portability.report(self.d, rule, pos, **details)
+
+    def in_builtin(self) -> bool:
+        return self.current_pou is not None and self.current_pou.pos.file in self.prog.builtin_files

@@ -1,0 +1,190 @@
+"""The compiler's stage contract: the AST declares its fields and annotations, the visitors walk the declared
+children, and a node kind a pass does not handle stops the build with an internal error at its position
+instead of becoming silent C."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import pytest
+
+from harness import compile_st
+from plc import ast as A
+from plc.codegen import generate
+from plc.diagnostics import Diagnostics, InternalError
+from plc.driver import analyze, compile_sources
+from plc.parser import parse
+
+SRC = """PROGRAM Main
+VAR
+    n : INT;
+    go : BOOL;
+END_VAR
+IF go THEN
+    n := n + 1;
+END_IF;
+n := ABS(n);
+END_PROGRAM
+"""
+
+
+@dataclass(eq=False)
+class Goto(A.Stmt):
+    """A statement kind no pass knows: what a new parser rule without its passes would produce."""
+    label: str = ""
+
+
+def main_pou(files: list[A.SourceFile]) -> A.Pou:
+    return next(item for f in files for item in f.items if isinstance(item, A.Pou) and item.name == "MAIN")
+
+
+def test_annotations_are_declared_fields_outside_the_constructor():
+    for kind, names in ((A.Name, {"ty", "sym"}), (A.Binary, {"ty", "sym"}), (A.Arg, {"param"}),
+                        (A.Call, {"ty", "sym", "target", "site", "std_args", "time_arith"})):
+        annotations = {f.name for f in dataclasses.fields(kind) if A.is_annotation(f)}
+        assert annotations == names, kind
+        assert all(not f.init for f in dataclasses.fields(kind) if f.name in names)
+    call = A.Call(A.Pos("t.st", 1, 1), "ABS", [])
+    assert (call.ty, call.target, call.site, call.std_args, call.time_arith) == (None, None, -1, [], False)
+
+
+def test_semantic_passes_fill_the_annotations_code_generation_reads():
+    res = compile_st(SRC, name="t.st", generate=False)
+    assert res.ok, [d.message for d in res.diags.sorted()]
+    body = main_pou(res.files).body
+    assign = body[1]
+    call = assign.value
+    assert call.target is not None and call.target.name == "ABS"
+    assert call.std_args == [call.args[0].value]
+    assert call.ty is not None and call.ty.name == "INT"
+    assert assign.target.sym.name == "N"
+
+
+def test_the_generic_visitor_walks_declared_children_and_skips_annotations():
+    diags = Diagnostics()
+    f = parse(SRC, "t.st", diags)
+
+    class Names(A.NodeVisitor):
+        def __init__(self):
+            self.seen = []
+
+        def visit_Name(self, node):
+            self.seen.append((node.name, node.pos.line))
+
+    v = Names()
+    v.visit(f)
+    assert v.seen == [("GO", 6), ("N", 7), ("N", 7), ("N", 9), ("N", 9)]
+    kinds = [type(n).__name__ for n in A.walk(main_pou([f]))]
+    assert kinds.count("Assign") == 2 and kinds.index("If") < kinds.index("Assign")
+
+
+def test_the_transformer_replaces_nodes_in_lists_and_tuples():
+    diags = Diagnostics()
+    f = parse(SRC, "t.st", diags)
+
+    class Negate(A.NodeTransformer):
+        def visit_IntLit(self, node):
+            return A.IntLit(node.pos, -node.value)
+
+    Negate().visit(f)
+    values = [n.value for n in A.walk(f) if isinstance(n, A.IntLit)]
+    assert values == [-1]
+
+
+def test_the_strict_visitor_names_the_unhandled_kind_and_its_position():
+    class OnlyPrograms(A.StrictVisitor):
+        def visit_Pou(self, node):
+            return node.name
+
+    assert OnlyPrograms().visit(main_pou(parse(SRC, "t.st", Diagnostics()).__class__ and
+                                         [parse(SRC, "t.st", Diagnostics())])) == "MAIN"
+    with pytest.raises(InternalError) as exc:
+        OnlyPrograms().visit(Goto(A.Pos("t.st", 3, 5)))
+    assert str(exc.value) == "t.st:3:5: internal compiler error: OnlyPrograms does not handle Goto"
+
+
+def test_an_unhandled_statement_kind_stops_semantic_analysis_at_its_position():
+    diags = Diagnostics()
+    files = [parse(SRC, "t.st", diags)]
+    main_pou(files).body.append(Goto(A.Pos("t.st", 9, 1)))
+    with pytest.raises(InternalError) as exc:
+        analyze(files, diags)
+    assert exc.value.pos == A.Pos("t.st", 9, 1)
+    assert "does not handle the statement Goto" in str(exc.value)
+
+
+def test_an_unhandled_statement_kind_stops_code_generation_instead_of_compiling_to_nothing():
+    res = compile_st(SRC, name="t.st", generate=False)
+    assert res.ok
+    main_pou(res.files).body.insert(0, Goto(A.Pos("t.st", 6, 1)))
+    with pytest.raises(InternalError) as exc:
+        generate(res.program)
+    assert exc.value.pos == A.Pos("t.st", 6, 1)
+    assert "the C generator does not handle the statement Goto" in str(exc.value)
+
+
+def test_an_unresolved_expression_stops_code_generation_instead_of_compiling_to_zero():
+    res = compile_st(SRC, name="t.st", generate=False)
+    assert res.ok
+    cond = main_pou(res.files).body[0].branches[0][0]
+    cond.sym = None                         # what a pass that forgot to resolve the name would leave
+    with pytest.raises(InternalError) as exc:
+        generate(res.program)
+    assert exc.value.pos == A.Pos("t.st", 6, 4)
+    assert "name GO reached the C generator unresolved" in str(exc.value)
+
+
+def test_every_standard_function_carries_its_c_emitter_beside_its_signature():
+    from plc.stdfuncs import STD_FUNCS
+    missing = [name for name, f in STD_FUNCS.items() if f.emit is None]
+    assert missing == []
+
+
+def test_a_standard_function_without_an_emitter_stops_code_generation_at_the_call():
+    res = compile_st(SRC, name="t.st", generate=False)
+    assert res.ok
+    call = main_pou(res.files).body[1].value
+    call.target = dataclasses.replace(call.target, emit=None)
+    with pytest.raises(InternalError) as exc:
+        generate(res.program)
+    assert exc.value.pos == A.Pos("t.st", 9, 6)
+    assert "standard function ABS has no C emitter" in str(exc.value)
+
+
+def test_portability_warnings_are_written_only_by_the_portability_module():
+    """The stages record a portability fact by rule name; portability.RULES holds every message and hint."""
+    import re
+    from pathlib import Path
+
+    import plc
+    from plc import portability
+    pkg = Path(plc.__file__).parent
+    writers = sorted(str(p.relative_to(pkg)) for p in pkg.rglob("*.py")
+                     if ".portable(" in p.read_text() and p.name not in ("portability.py", "diagnostics.py"))
+    assert writers == []
+    used = {m.group(1) for p in pkg.rglob("*.py")
+            for m in re.finditer(r'(?:self\.port|portability\.report)\([^,]+, "([a-z-]+)"',
+                                 p.read_text())}
+    assert used == set(portability.RULES)
+
+
+def test_a_recorded_portability_fact_becomes_the_rules_warning():
+    res = compile_st("PROGRAM Main\nVAR t : TIME; END_VAR\nt := T#5us;\nEND_PROGRAM\n", name="t.st", generate=False)
+    (w,) = [d for d in res.diags.warnings if d.code == "portability.time-unit"]
+    assert (w.pos.line, w.pos.col) == (3, 6)
+    assert w.message == "portability: 'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC"
+    assert w.hint == "write fractions of ms, e.g. T#1.5ms"
+
+
+def test_no_stage_hangs_an_undeclared_attribute_on_a_node():
+    """Compiling the project's library and its tests leaves only declared fields on every node."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    res = compile_sources([root / "st_src", root / "iec_tests"], test_build=True)
+    assert res.ok and res.c_text
+    undeclared = set()
+    for f in res.files:
+        for node in A.walk(f):
+            declared = {fl.name for fl in dataclasses.fields(node)}
+            undeclared |= {(type(node).__name__, k) for k in vars(node) if k not in declared}
+    assert undeclared == set()
