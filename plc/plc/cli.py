@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from . import __version__, runtime
+from .diagnostics import InternalError
 from .driver import UserError, compile_c, compile_sources, print_diagnostics
 
 
@@ -192,6 +193,11 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as e:
         print(f"plc: error: {e}", file=sys.stderr)
         return 2
+    except InternalError as e:
+        # a node kind a compiler stage does not handle: a bug of the compiler, never silent C
+        print(f"{e}\nplc: this is a bug of the compiler, not of your program: please report it with the input",
+              file=sys.stderr)
+        return 3
     except KeyboardInterrupt:
         print("plc: interrupted", file=sys.stderr)
         return 130

@@ -188,3 +188,20 @@ def test_no_stage_hangs_an_undeclared_attribute_on_a_node():
             declared = {fl.name for fl in dataclasses.fields(node)}
             undeclared |= {(type(node).__name__, k) for k in vars(node) if k not in declared}
     assert undeclared == set()
+
+
+def test_an_internal_error_reaches_the_command_line_as_exit_3_with_its_position_and_no_traceback(
+        tmp_path, monkeypatch, capsys):
+    from plc import cli, driver
+
+    def broken(*_args, **_kw):
+        raise InternalError(A.Pos("t.st", 4, 2), "the C generator does not handle the statement Goto")
+
+    monkeypatch.setattr(driver, "compile_sources", broken)
+    monkeypatch.setattr(cli, "compile_sources", broken)
+    src = tmp_path / "t.st"
+    src.write_text(SRC)
+    assert cli.main(["check", str(src)]) == 3
+    err = capsys.readouterr().err
+    assert err.startswith("t.st:4:2: internal compiler error: the C generator does not handle the statement Goto")
+    assert "bug of the compiler" in err and "Traceback" not in err
