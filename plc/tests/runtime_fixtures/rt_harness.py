@@ -50,7 +50,9 @@ def runtime_binary(program_c: Path = BASIC, **defines: object) -> Path:
         key = hashlib.sha256(text.encode()).hexdigest()[:12]
         wrapper = CACHE / f"wrap_{program_c.stem}_{key}.c"
         if not wrapper.exists() or wrapper.read_text() != text:
-            wrapper.write_text(text)
+            tmp = wrapper.with_name(f"{wrapper.name}.{os.getpid()}")   # the cache is shared by concurrent runs
+            tmp.write_text(text)
+            os.replace(tmp, wrapper)
         program_c = wrapper
     return build_runtime(program_c, CACHE, sanitize=SANITIZE)
 
