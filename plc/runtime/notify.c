@@ -106,14 +106,20 @@ void notify_send(notifier_t *n, const char *fmt, ...)
     n->failing = false;
 }
 
+/* STATUS= of a running program; `prefix` goes first in the same datagram ("" or "READY=1\n"). */
+static void say_running(notifier_t *n, const runtime_t *rt, const char *prefix)
+{
+    notify_send(n, "%sSTATUS=running %s, scan period %.3f ms", prefix,
+                rt->prog->config_name ? rt->prog->config_name : "program", rt->period_ns / 1e6);
+}
+
 static void say_state(notifier_t *n, const runtime_t *rt)
 {
     if (rt->state == n->last_state)
         return;
     n->last_state = rt->state;
     if (rt->state == PLC_STATE_RUNNING)
-        notify_send(n, "STATUS=running %s, scan period %.3f ms",
-                    rt->prog->config_name ? rt->prog->config_name : "program", rt->period_ns / 1e6);
+        say_running(n, rt, "");
     else if (rt->state == PLC_STATE_FAULTED)
         notify_send(n, "STATUS=FAULTED: program stopped (fault kind %d at line %d), outputs safe, Modbus serving",
                     rt->fault_kind, rt->fault_line);
@@ -124,8 +130,7 @@ void notify_after_scan(notifier_t *n, const runtime_t *rt, uint64_t now)
     if (!n)
         return;
     if (!n->ready_sent) {
-        notify_send(n, "READY=1\nSTATUS=running %s, scan period %.3f ms",
-                    rt->prog->config_name ? rt->prog->config_name : "program", rt->period_ns / 1e6);
+        say_running(n, rt, "READY=1\n");
         n->ready_sent = true;
         n->last_state = rt->state;
     }

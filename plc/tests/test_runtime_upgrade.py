@@ -105,23 +105,14 @@ UPGRADES = [
 ]
 
 
-def write_atomically(path: Path, text: str) -> None:
-    """The cache is shared by test runs on one machine: a reader never sees a half-written file."""
-    tmp = path.with_name(f"{path.name}.{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def build(text: str, name: str) -> Path:
     h.CACHE.mkdir(parents=True, exist_ok=True)
     src = h.CACHE / f"upgrade_{hashlib.sha256(text.encode()).hexdigest()[:12]}.st"
-    if not src.exists() or src.read_text() != text:
-        write_atomically(src, text)
+    h.write_if_changed(src, text)
     res = compile_sources([src], portability=False)
     assert res.ok, f"{name}: " + "\n".join(d.render() for d in res.diags.errors)
     c_file = src.with_suffix(".c")
-    if not c_file.exists() or c_file.read_text() != res.c_text:
-        write_atomically(c_file, res.c_text)
+    h.write_if_changed(c_file, res.c_text)
     return h.runtime_binary(c_file)
 
 

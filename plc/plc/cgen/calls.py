@@ -96,8 +96,6 @@ class CallGen(GenBase):
                 return f"plc_real_to_time(plc_str_to_real({x}))"
             return f"(({dc})0)"
         if dcat == "bool":
-            if sc == "time":
-                return f"((uint8_t)(({x}) != 0))"
             return f"((uint8_t)(({x}) != 0))"
         if sc == "real":
             if dcat in ("int",):

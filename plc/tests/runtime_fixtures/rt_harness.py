@@ -40,6 +40,16 @@ SANITIZER_ENV = {
 }
 
 
+def write_if_changed(path: Path, text: str) -> None:
+    """Write a file of the runtime-test cache, which concurrent test runs on one machine share: atomically
+    (a reader never sees it half-written), and only when its text differs."""
+    if path.exists() and path.read_text() == text:
+        return
+    tmp = path.with_name(f"{path.name}.{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def runtime_binary(program_c: Path = BASIC, **defines: object) -> Path:
     """The runtime built with a fixture program; `defines` become #defines in a wrapper."""
     if defines:
@@ -49,10 +59,7 @@ def runtime_binary(program_c: Path = BASIC, **defines: object) -> Path:
         text = "\n".join(lines) + "\n"
         key = hashlib.sha256(text.encode()).hexdigest()[:12]
         wrapper = CACHE / f"wrap_{program_c.stem}_{key}.c"
-        if not wrapper.exists() or wrapper.read_text() != text:
-            tmp = wrapper.with_name(f"{wrapper.name}.{os.getpid()}")   # the cache is shared by concurrent runs
-            tmp.write_text(text)
-            os.replace(tmp, wrapper)
+        write_if_changed(wrapper, text)
         program_c = wrapper
     return build_runtime(program_c, CACHE, sanitize=SANITIZE)
 
