@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "plc"))
+sys.path.insert(0, str(ROOT / "plc" / "src"))
 
 sys.path.insert(0, str(ROOT / "plc" / "tests"))
 

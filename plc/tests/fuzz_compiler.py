@@ -31,8 +31,6 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 PLC_DIR = HERE.parent
 ROOT = PLC_DIR.parent
-if str(PLC_DIR) not in sys.path:
-    sys.path.insert(0, str(PLC_DIR))
 
 TOKEN = re.compile(r"\(\*.*?\*\)|'(?:\$.|[^'$])*'|\"(?:\$.|[^\"$])*\"|[A-Za-z_][A-Za-z0-9_]*(?:#[A-Za-z0-9_.:#-]+)?"
                    r"|\d[\d_]*(?:\.\d+)?(?:[eE][-+]?\d+)?|%[IQM][XBWDL]?[\d.]*|:=|=>|<=|>=|<>|\*\*|\.\.|\s+|.",
@@ -61,7 +59,7 @@ UNTERMINATED = ["(*", "/*", "'", '"', "{", "(* (* ", "'$", "16#", "T#", "%", "2#
 def corpus() -> list[tuple[str, str]]:
     """(name, text) of every ST source the project has, plus the conformance snippets."""
     items: list[tuple[str, str]] = []
-    for d in (ROOT / "st_src", ROOT / "iec_tests", PLC_DIR / "plc" / "stdlib"):
+    for d in (ROOT / "st_src", ROOT / "iec_tests", PLC_DIR / "src" / "plc" / "stdlib"):
         for p in sorted(d.rglob("*.st")) if d.is_dir() else []:
             items.append((str(p.relative_to(ROOT)), p.read_text(errors="replace")))
     for p in sorted(HERE.glob("test_*.py")):
@@ -178,7 +176,7 @@ def compile_one(text: str, check_c: bool) -> tuple[str, str]:
         if isinstance(e, KeyboardInterrupt):
             raise
         tb = traceback.extract_tb(e.__traceback__)
-        where = next((f"{Path(f.filename).name}:{f.lineno}" for f in reversed(tb) if "/plc/plc/" in f.filename),
+        where = next((f"{Path(f.filename).name}:{f.lineno}" for f in reversed(tb) if "/src/plc/" in f.filename),
                      f"{Path(tb[-1].filename).name}:{tb[-1].lineno}" if tb else "?")
         return "traceback", f"{type(e).__name__} at {where}: {str(e)[:200]}"
     if res.c_text is None:

@@ -28,10 +28,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-# Import the compiler from this checkout even when pytest runs from the repository root, where
-# the project folder plc/ would otherwise shadow the package plc/plc/ as a namespace package.
-if str(HERE.parent) not in sys.path:
-    sys.path.insert(0, str(HERE.parent))
 
 from plc.driver import INCLUDE, compile_sources  # noqa: E402
 DRIVER_C = HERE / "scan_driver.c"

@@ -14,7 +14,6 @@ import pytest
 from harness import compile_st, run_st
 from plc import driver, runtime
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
 import rt_harness as h  # noqa: E402
 
 CONFIG = """

@@ -15,7 +15,7 @@ GENERATED = ROOT / "st_src" / "app" / "generated" / "FB_MachineConfig.st"
 
 def machine(*args, cwd=ROOT):
     # PYTHONPATH: from the project root `plc` would otherwise be the folder plc/, not the package plc/plc
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "plc"))
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "plc" / "src"))
     return subprocess.run([sys.executable, "-m", "plc.cli", "machine", *args], capture_output=True, text=True,
                           cwd=cwd, timeout=60, env=env)
 

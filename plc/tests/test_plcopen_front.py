@@ -29,7 +29,7 @@ CONFIG = ('<configuration name="Config0"><resource name="Res0"><task name="task0
 
 def plc(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "plc.cli", *args], capture_output=True, text=True,
-                          cwd=cwd or REPO, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO / "plc")})
+                          cwd=cwd or REPO, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO / "plc" / "src")})
 
 
 def write(tmp_path: Path, text: str, name: str = "p.xml") -> Path:
@@ -379,7 +379,7 @@ def test_plc_run_serves_a_ladder_program_from_xml(tmp_path):
         proc = subprocess.Popen([sys.executable, "-m", "plc.cli", "run", str(f), "--port", str(port), "--retain",
                                  str(tmp_path / "r.retain"), "--build-dir", str(tmp_path / "build")],
                                 cwd=tmp_path, stdout=out, stderr=subprocess.STDOUT,
-                                env={**os.environ, "PYTHONPATH": str(REPO / "plc")})
+                                env={**os.environ, "PYTHONPATH": str(REPO / "plc" / "src")})
     try:
         deadline = time.monotonic() + 180        # bounds a hang only (a cold runtime build)
         while f"listening on 127.0.0.1:{port}" not in log.read_text(errors="replace"):

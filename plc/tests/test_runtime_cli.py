@@ -16,7 +16,6 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
 import rt_harness as h  # noqa: E402
 from plc import runtime  # noqa: E402
 

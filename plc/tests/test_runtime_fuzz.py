@@ -15,7 +15,6 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
 import modbus_fuzz as fz  # noqa: E402
 import rt_harness as h  # noqa: E402
 

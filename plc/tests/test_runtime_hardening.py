@@ -17,7 +17,6 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
 import rt_harness as h  # noqa: E402
 from rt_harness import (MODBUS_EXCEPTION_ILLEGAL_FUNCTION, MODBUS_FC_READ_HOLDING_REGISTERS,  # noqa: E402
                         MODBUS_FC_WRITE_MULTIPLE_COILS, MODBUS_FC_WRITE_MULTIPLE_REGISTERS,

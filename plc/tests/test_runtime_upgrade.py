@@ -17,7 +17,6 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "runtime_fixtures"))
 import rt_harness as h  # noqa: E402
 from plc import retainfile  # noqa: E402
 from plc.driver import compile_sources  # noqa: E402

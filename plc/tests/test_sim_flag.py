@@ -1,5 +1,5 @@
 """SimulatedPlant has one home, modbus_map/map.toml; the two things that raise it must agree with it: the
-runtime's `--io sim` layer (plc/runtime/io_sim.c, SIM_FLAG_BIT) and the OpenPLC PSM script for demos
+runtime's `--io sim` layer (plc/src/plc/native/runtime/io_sim.c, SIM_FLAG_BIT) and the OpenPLC PSM script for demos
 (configs/openplc/psm_simulated_plant.py), which can only reach %IX0.0..%IX49.7."""
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ def test_the_map_puts_simulated_plant_where_openplc_psm_can_raise_it():
 
 
 def test_the_runtime_sim_layer_raises_the_map_address():
-    text = (REPO / "plc" / "runtime" / "io_sim.c").read_text(encoding="utf-8")
+    text = (REPO / "plc" / "src" / "plc" / "native" / "runtime" / "io_sim.c").read_text(encoding="utf-8")
     m = re.search(r"#define SIM_FLAG_BIT (\d+)", text)
     assert m and int(m.group(1)) == SIG.address, m and m.group(0)
 

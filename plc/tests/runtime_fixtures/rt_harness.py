@@ -22,8 +22,6 @@ from pathlib import Path
 from typing import Callable
 
 FIXTURES = Path(__file__).resolve().parent
-PLC_ROOT = FIXTURES.parent.parent                      # .../plc
-sys.path.insert(0, str(PLC_ROOT))
 from plc.runtime import build_runtime  # noqa: E402
 
 SANITIZE = os.environ.get("PLC_RUNTIME_SANITIZE", "") not in ("", "0")

@@ -6,7 +6,7 @@ tick.  Located variables are pointers the host rebinds through the generated
 table; every variable is listed in a table for debugging, HMI and RETAIN.  The
 unit talks to its host only through plc_abi.h.
 
-`Gen` joins the parts of plc/plc/cgen (one concern each); `generate` lays the
+`Gen` joins the parts of plc/src/plc/cgen (one concern each); `generate` lays the
 unit out.  A node kind the generator has no method for is an InternalError at
 its position, never silent C.
 """
@@ -27,7 +27,7 @@ from .passes.context import Program
 
 
 class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen, ConfigGen, GenBase):
-    """The C generator: one part per concern in plc/plc/cgen, joined over one output buffer."""
+    """The C generator: one part per concern in plc/src/plc/cgen, joined over one output buffer."""
 
     # ------------------------------------------------------------- generation --
     def generate(self) -> str:

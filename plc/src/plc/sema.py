@@ -1,10 +1,10 @@
-"""Semantic analysis: the passes of plc/plc/passes over one shared state.
+"""Semantic analysis: the passes of plc/src/plc/passes over one shared state.
 
 Input: the parsed files.  Output: a `Program` — the same AST with its
 annotations filled in (every expression's `ty`, every name's `sym`, every
 call's `target`, ...; see ast.py) plus the tables the C generator needs.
 
-Each concern is a module of plc/plc/passes; `Analyzer` joins them because the
+Each concern is a module of plc/src/plc/passes; `Analyzer` joins them because the
 later passes ask the earlier ones (the bodies pass evaluates constants and
 resolves types).  driver.SEMANTIC_PASSES runs them, in this order:
 

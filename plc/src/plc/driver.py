@@ -20,9 +20,8 @@ from . import ast as A
 from .diagnostics import Diagnostics, SourceSet
 from .parser import parse
 
-PKG = Path(__file__).resolve().parent
-STDLIB = PKG / "stdlib"
-INCLUDE = PKG.parent / "include"
+from .resources import INCLUDE, STDLIB
+
 STANDARD_FBS = STDLIB / "standard_fbs.st"
 TESTLIB = STDLIB / "testing"
 
@@ -107,7 +106,7 @@ def read_source(path: Path) -> str:
 
 def load_user_file(path: Path, diags: Diagnostics, sources: SourceSet):
     """(name, ST text, translation or None) of one source file.  A PLCopen project becomes ST through
-    the XML front end (plc/plc/plcopen); its XML text is kept in `sources` for rendering diagnostics,
+    the XML front end (plc/src/plc/plcopen); its XML text is kept in `sources` for rendering diagnostics,
     which `translation.remap(diags)` points back into the XML.  The text is None when it cannot be read."""
     name = display_name(path)
     if path.suffix.lower() != ".xml":
@@ -145,7 +144,7 @@ def deep_recursion(fn):
     return wrapper
 
 
-# The semantic passes in the order they run: (name, Analyzer method, module of plc/plc/passes).
+# The semantic passes in the order they run: (name, Analyzer method, module of plc/src/plc/passes).
 SEMANTIC_PASSES = (
     ("declarations", "declare", "declarations"),
     ("types", "resolve_types", "typedecls"),

@@ -23,7 +23,7 @@ from .diagnostics import Diagnostics, Pos
 from .stdfuncs import STD_FUNCS, conversion
 from .types import ELEMENTARY, GENERIC, EnumType, StructType
 
-DATA = Path(__file__).resolve().parent / "data"
+from .resources import DATA
 
 @dataclass(frozen=True)
 class Rule:

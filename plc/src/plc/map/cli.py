@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from ..diagnostics import Diagnostics
+from ..resources import source_checkout
 from .generate import drift, load_and_check, outputs, write
 
 EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
@@ -23,8 +24,8 @@ def default_map() -> Path:
     """modbus_map/map.toml of the current directory, else of the repository this package lives in."""
     if DEFAULT_MAP.is_file():
         return DEFAULT_MAP
-    repo = Path(__file__).resolve().parents[3]
-    return repo / DEFAULT_MAP
+    repo = source_checkout()
+    return (repo / DEFAULT_MAP) if repo is not None else DEFAULT_MAP
 
 
 class _Parser(argparse.ArgumentParser):

@@ -23,7 +23,7 @@ from .stexpr import AND_P, ATOM, FALSE, NOT_P, OR_P, SIMPLE, TRUE, Ex, Line, and
 CONVERSION = re.compile(r"^(\w+)_TO_(\w+)$", re.I)
 # standard functions that are operators in ST (they cannot be called by name), with their precedence
 OPERATORS = {"AND": AND_P, "OR": OR_P, "XOR": 4, "NOT": NOT_P, "MOD": 7}
-# the result type of a standard function, by its kind in plc/plc/stdfuncs.py: a fixed type ...
+# the result type of a standard function, by its kind in plc/src/plc/stdfuncs.py: a fixed type ...
 STD_RESULT_TYPE = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "STRING", "mid": "STRING",
                    "concat": "STRING", "insert": "STRING", "delete": "STRING", "replace": "STRING", "trunc": "DINT"}
 # ... or the type of an input pin (of any other typed input when that one cannot be told)

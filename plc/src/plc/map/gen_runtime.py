@@ -1,6 +1,6 @@
 """configs/runtime.toml: the `plc run --config` file whose Modbus and RETAIN ranges come from the map.
 
-The keys are those of plc/plc/runtime.py's load_config: host-writable coils and registers are exactly the
+The keys are those of plc/src/plc/runtime.py's load_config: host-writable coils and registers are exactly the
 host_to_plc signals (everything else gets exception 02), and the retained signals' holding registers are
 saved with the RETAIN variables (`[retain] registers`).
 """

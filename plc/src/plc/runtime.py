@@ -1,7 +1,7 @@
 """The soft-PLC runtime, Python side: build the C runtime with a program, and `plc run`.
 
-``build_runtime(program_c, out_dir)`` compiles the runtime sources in ``plc/runtime/``
-together with one program C file (written against ``plc/include/plc_abi.h``) into an
+``build_runtime(program_c, out_dir)`` compiles the runtime sources in ``plc/src/plc/native/runtime/``
+together with one program C file (written against ``plc/src/plc/native/include/plc_abi.h``) into an
 executable, cached by the content of everything that goes into it.
 
 ``run_command(args, program_c)`` implements ``plc run``: it reads the optional TOML
@@ -50,9 +50,8 @@ import tomllib
 from pathlib import Path
 from typing import Any, Sequence
 
-PACKAGE_ROOT = Path(__file__).resolve().parent.parent          # .../plc
-RUNTIME_DIR = PACKAGE_ROOT / "runtime"
-INCLUDE_DIR = PACKAGE_ROOT / "include"
+from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
+
 BINARY_NAME = "plc-runtime"
 
 COILS = 800                 # %QX0.0 .. %QX99.7

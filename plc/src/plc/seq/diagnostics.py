@@ -1,7 +1,7 @@
 """Diagnostics of the sequence tools: collected, never thrown one at a time.
 
 Every problem found in a sequence file or a sequence-set index is the toolchain's one `Diagnostic`
-(plc/plc/diagnostics.py) with its file, 1-based line and column, a message and an optional hint. `render` prints
+(plc/src/plc/diagnostics.py) with its file, 1-based line and column, a message and an optional hint. `render` prints
 it the way compilers do:
 
     put.seq:3:1: error: unknown command 'MOVEABZ'
