@@ -14,7 +14,7 @@ from plc.map import cli as map_cli
 from plc.map.generate import drift, load_and_check, outputs, write
 
 REPO = Path(__file__).resolve().parents[2]
-GENERATED = ["hmi_tags", "configs/linuxcnc/atc_mb2hal.ini", "configs/linuxcnc/atc_iov2.hal",
+GENERATED = ["hmi_tags", "configs/machine.toml", "configs/sequences", "configs/linuxcnc/atc_mb2hal.ini", "configs/linuxcnc/atc_iov2.hal",
              "configs/linuxcnc/atc_io.hal", "configs/runtime.toml", "docs/register-map.md"]
 
 
@@ -137,14 +137,14 @@ def test_signal_names_must_be_portable_st(project):
 
 
 def test_description_cannot_close_the_st_comment(project):
-    edit(project / "modbus_map" / "map.toml", 'description = "carousel home sensor"',
-         'description = "carousel home sensor *) oops"')
+    edit(project / "modbus_map" / "map.toml", 'description = "spindle collet opened"',
+         'description = "spindle collet opened *) oops"')
     one_error(check(project), "contains '(*' or '*)'")
 
 
 def test_unknown_key_and_bad_toml(project):
     path = project / "modbus_map" / "map.toml"
-    line = edit(path, 'name = "CarouselHome"', 'name = "CarouselHome"\nadress = 3')
+    line = edit(path, 'name = "ColletOpened"', 'name = "ColletOpened"\nadress = 3')
     assert one_error(check(project), "unknown key 'adress'").startswith(f"modbus_map/map.toml:{line + 1}:")
     path.write_text(path.read_text() + "\n[[signal]\n")
     assert "invalid TOML" in one_error(check(project), "invalid TOML")
@@ -265,8 +265,8 @@ def test_a_missing_generated_file_is_drift(project):
 
 
 def test_generate_is_reproducible_and_writes_nothing_the_second_time(project):
-    edit(project / "modbus_map" / "map.toml", 'description = "carousel home sensor"',
-         'description = "carousel home sensor (changed)"')
+    edit(project / "modbus_map" / "map.toml", 'description = "spindle collet opened"',
+         'description = "spindle collet opened (changed)"')
     diags = Diagnostics()
     loaded = load_and_check(project / "modbus_map" / "map.toml", diags)
     first = write(loaded)
@@ -275,3 +275,13 @@ def test_generate_is_reproducible_and_writes_nothing_the_second_time(project):
     loaded = load_and_check(project / "modbus_map" / "map.toml", Diagnostics())
     assert write(loaded) == []
     assert {rel: (project / rel).read_bytes() for rel in outputs(loaded)} == snapshot
+
+
+def test_a_carousel_line_on_a_taken_channel_names_both_files(project):
+    """The carousel lines come from the machine description: a channel another signal of the map uses is an
+    error at the machine's line that names the map's line."""
+    machine = project / "configs" / "machine.toml"
+    line = edit(machine, "home = 17 ", "home = 19 ")
+    msg = one_error(check(project), "is already taken by")
+    assert msg.startswith(f"configs/machine.toml:{line}:") or "configs/machine.toml" in msg, msg
+    assert "modbus_map/map.toml:" in msg, msg

@@ -19,6 +19,10 @@ from .diagnostics import FILE_LINE, Diagnostic, Pos
 
 DEFAULT_CONFIG = Path("configs") / "machine.toml"
 DEFAULT_OUT = Path("st_src") / "app" / "generated" / "FB_MachineConfig.st"
+MAP_FILE = "modbus_map/map.toml"
+TOOL_TABLE = "configs/linuxcnc/atc-sim.tbl"
+SEQ_TABLES = "st_src/sequence/generated/SequenceTables.st"
+EXAMPLES = "configs/examples"
 
 INPUTS = {"home+pocket": "InputsHomePocket", "home+pocket+code": "InputsHomePocketCode",
           "home+code": "InputsHomeCode", "pocket+code": "InputsPocketCode", "code": "InputsCodeOnly"}
@@ -61,9 +65,35 @@ class Checker:
         self.problem(self.line_of(section, key), message)
 
 
+KINDS = {"carousel": "rotary toolchanger (the Logosol manual's carousel)"}   # room for e.g. "fixed-pockets"
+MAX_POCKETS = 50            # the Logosol limit; the ST pocket tables are ARRAY[1..50]
+MAX_CHANNEL = 799           # discrete inputs / coils of OpenPLC's map (%IX0.0..%IX99.7, %QX0.0..%QX99.7)
+
+# The carousel lines of the Logosol manual: [channels] key -> register-map signal, table, description.
+LINES = {
+    "home": ("CarouselHome", "discrete_input", "carousel home input (Logosol Home Input)"),
+    "pocket": ("CarouselPocket", "discrete_input", "carousel pocket input (Logosol Pocket Input)"),
+    **{f"code{i}": (f"CarouselCode{i}", "discrete_input",
+                    f"carousel code input {i} (Logosol Code Input {i}, weight {1 << (i - 1)})") for i in range(1, 7)},
+    "on": ("CarouselMotorOn", "coil", "carousel Output ON (wire level after invert_on); safe: its Stop-row level"),
+    "plus_dir": ("CarouselDirPositive", "coil",
+                 "carousel Output +DIR (wire level after invert_plus_dir); safe: its Stop-row level"),
+    "minus_dir": ("CarouselDirNegative", "coil",
+                  "carousel Output -DIR (wire level after invert_minus_dir); safe: its Stop-row level"),
+}
+# the changer lines the sequences use by channel (FB_MachineConfig.Channels): ST field -> register-map signal
+MAP_CHANNELS = {"armAtForward": "ArmAtForward", "armAtReverse": "ArmAtReverse", "colletOpened": "ColletOpened",
+                "lengthSensor": "ToolLengthSensor", "brakeOff": "BrakeOff", "armForward": "ArmForward",
+                "colletOpen": "ColletOpen"}
+
+
 SCHEMA = {
+    "machine": {"kind": (KINDS,), "name": (str,)},
+    "channels": {"home": (int, 0, MAX_CHANNEL), "pocket": (int, 0, MAX_CHANNEL), "code": (list, int),
+                 "on": (int, 0, MAX_CHANNEL), "plus_dir": (int, 0, MAX_CHANNEL), "minus_dir": (int, 0, MAX_CHANNEL)},
+    "sequences": {"index": (str,)},
     "carousel": {
-        "pockets": (int, 2, 50), "inputs": (INPUTS,), "outputs": (OUTPUTS,), "homing": (HOMING,),
+        "pockets": (int, 2, MAX_POCKETS), "inputs": (INPUTS,), "outputs": (OUTPUTS,), "homing": (HOMING,),
         "code_inputs": (int, 1, 6), "code_check": (CODE_CHECK,), "debounce_scans": (int, 1, 100),
         "home_timeout_ms": (int, 0, 600000), "pocket_timeout_ms": (int, 0, 600000), "stop_delay_ms": (int, 0, 10000),
         "invert_home": (bool,), "invert_pocket": (bool,), "invert_on": (bool,), "invert_plus_dir": (bool,),
@@ -74,6 +104,7 @@ SCHEMA = {
                    "arm_travel_ms": (int, 1, 60000), "collet_ms": (int, 1, 60000), "brake_ms": (int, 0, 60000)},
 }
 REQUIRED = {"carousel": ("pockets", "inputs", "outputs", "homing")}
+DEFAULT_SEQUENCES = "configs/sequences/sequences.toml"
 
 
 def load(path: Path) -> tuple[dict | None, Checker]:
@@ -117,6 +148,9 @@ def check_value(ck: Checker, sec: str, key: str, v, rule) -> None:
     if isinstance(kind, dict):
         if v not in kind:
             ck.error(sec, key, f"[{sec}] {key}: '{v}' is not one of {', '.join(kind)}")
+    elif kind is str:
+        if not isinstance(v, str):
+            ck.error(sec, key, f"[{sec}] {key}: expected a string")
     elif kind is bool:
         if not isinstance(v, bool):
             ck.error(sec, key, f"[{sec}] {key}: expected true or false")
@@ -127,6 +161,40 @@ def check_value(ck: Checker, sec: str, key: str, v, rule) -> None:
         if not isinstance(v, list) or not all(isinstance(x, rule[1]) and not (rule[1] is int and isinstance(x, bool))
                                               for x in v):
             ck.error(sec, key, f"[{sec}] {key}: expected a list of {'true/false' if rule[1] is bool else 'integers'}")
+
+
+def used_lines(car: dict) -> list[str]:
+    """The [channels] keys of the carousel lines the input and output descriptions use, in LINES order."""
+    inputs, outputs = car["inputs"], car["outputs"]
+    keys = []
+    if "home" in inputs:
+        keys.append("home")
+    if "pocket" in inputs:
+        keys.append("pocket")
+    if "code" in inputs:
+        keys += [f"code{i}" for i in range(1, car.get("code_inputs", 3) + 1)]
+    if outputs.startswith("enable"):
+        keys.append("on")
+    if outputs in ("single-positive", "enable+positive-dir", "separate"):
+        keys.append("plus_dir")
+    if outputs in ("single-negative", "enable+negative-dir", "separate"):
+        keys.append("minus_dir")
+    return keys
+
+
+def line_channels(data: dict) -> dict[str, int]:
+    """[channels] key -> channel of every used carousel line (code inputs as code1..code6)."""
+    ch = data.get("channels", {})
+    codes = ch.get("code", [])
+    out = {}
+    for key in used_lines(data["carousel"]):
+        if key.startswith("code"):
+            i = int(key[4:])
+            if i <= len(codes):
+                out[key] = codes[i - 1]
+        elif key in ch:
+            out[key] = ch[key]
+    return out
 
 
 def cross_checks(ck: Checker, data: dict) -> None:
@@ -154,6 +222,82 @@ def cross_checks(ck: Checker, data: dict) -> None:
     if car["outputs"].startswith("single") and car["homing"] == ("negative" if "positive" in car["outputs"]
                                                                  else "positive"):
         ck.error("carousel", "homing", "[carousel] homing: a single-direction carousel cannot home the other way")
+    check_channels(ck, data)
+
+
+def check_channels(ck: Checker, data: dict) -> None:
+    """Every line the descriptions use has a channel; no two carousel lines share one."""
+    car, ch = data["carousel"], data.get("channels")
+    if ch is None:
+        ck.error("carousel", None, "[channels] is required: the I/O channel of every carousel line "
+                                   f"({', '.join(used_lines(car))})")
+        return
+    used = used_lines(car)
+    n_codes = sum(1 for k in used if k.startswith("code"))
+    if n_codes and len(ch.get("code", [])) < n_codes:
+        ck.error("channels", "code" if "code" in ch else None,
+                 f"[channels] code: {len(ch.get('code', []))} channel(s) for {n_codes} code inputs "
+                 f"(code_inputs = {car.get('code_inputs', 3)})")
+    for key in used:
+        if not key.startswith("code") and key not in ch:
+            ck.error("channels", None, f"[channels] {key} is required: inputs = \"{car['inputs']}\" / "
+                                       f"outputs = \"{car['outputs']}\" use the {LINES[key][0]} line")
+    for c in ch.get("code", []):
+        if not 0 <= c <= MAX_CHANNEL:
+            ck.error("channels", "code", f"[channels] code: channel {c} is outside 0..{MAX_CHANNEL}")
+    seen: dict[tuple[str, int], str] = {}
+    for key, channel in line_channels(data).items():
+        table = LINES[key][1]
+        other = seen.get((table, channel))
+        if other is not None:
+            ck.error("channels", "code" if key.startswith("code") else key,
+                     f"[channels] {key} and {other} are both on {'input' if table == 'discrete_input' else 'output'} "
+                     f"channel {channel}: two lines on one channel")
+        else:
+            seen[(table, channel)] = key
+
+
+def sequences_index(data: dict, root: Path) -> Path:
+    return root / data.get("sequences", {}).get("index", DEFAULT_SEQUENCES)
+
+
+def tools_line(text: str) -> tuple[int, int | None]:
+    """Line of `tools = N` in a sequences.toml's [machine] table and N (None when absent)."""
+    section = ""
+    for n, raw in enumerate(text.splitlines(), 1):
+        s = raw.split("#", 1)[0].strip()
+        m = re.fullmatch(r"\[([^\]]+)\]", s)
+        if m:
+            section = m.group(1).strip()
+            continue
+        m = re.fullmatch(r"tools\s*=\s*(\d+)", s)
+        if section == "machine" and m:
+            return n, int(m.group(1))
+    return 1, None
+
+
+def check_sequences(ck: Checker, data: dict, root: Path, label: str) -> None:
+    """The sequence set's tool count covers the pockets (pocket n holds tool n)."""
+    index = sequences_index(data, root)
+    try:
+        text = index.read_text()
+    except OSError as e:
+        ck.error("sequences", "index", f"[sequences] index: cannot read {index}: {e.strerror}")
+        return
+    line, tools = tools_line(text)
+    pockets = data["carousel"]["pockets"]
+    if tools != pockets:
+        rel = _rel(index, root)
+        ck.error("carousel", "pockets",
+                 f"[carousel] pockets = {pockets}, but {rel}:{line} has tools = {tools}: the sequences must cover "
+                 f"tools 1..{pockets} (pocket n holds tool n); run `plc machine generate`, which writes it")
+
+
+def _rel(path: Path, root: Path) -> str:
+    try:
+        return path.resolve().relative_to(root.resolve()).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def ms(v: int) -> str:
@@ -164,17 +308,22 @@ def st_bool(v: bool) -> str:
     return "TRUE" if v else "FALSE"
 
 
-def generate(data: dict, source: str) -> str:
+def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
+    """FB_MachineConfig: the machine description as ST structures. map_channels: ST_AtcChannels field -> channel
+    of the changer lines the register map places (MAP_CHANNELS)."""
     car = data["carousel"]
     chg = data.get("changer", {})
     sim = data.get("simulation", {})
-    out = [f"(* Generated by `plc machine generate` from {source}: do not edit; edit the TOML and regenerate.",
+    chan = data.get("channels", {})
+    out = [f"(* Generated by `plc machine generate` from {source} and modbus_map/map.toml: do not edit; edit the",
+           "   TOML and regenerate.",
            "   FB_MachineConfig - the machine's configuration as structures; call it once per scan (no inputs). *)",
            "FUNCTION_BLOCK FB_MachineConfig",
            "VAR_OUTPUT",
            "    Rotary : ST_RotaryConfig;           (* the carousel: FB_RotaryPositioner.Config *)",
            "    Plant : ST_CarouselPlantConfig;     (* simulated carousel mechanics *)",
            "    ChangerPlant : ST_ChangerPlantConfig; (* simulated arm, collet and brake *)",
+           "    Channels : ST_AtcChannels;          (* I/O channels the application addresses by number *)",
            "    BrakeReleaseTime : TIME;            (* brake released this long before a pre-positioning turn *)",
            "    AutoHome : BOOL;                    (* run the Home sequence by itself after power-up *)",
            "    ToolSensor : BOOL;                  (* a tool-present sensor (ToolPresent) decides an unknown tool *)",
@@ -198,6 +347,10 @@ def generate(data: dict, source: str) -> str:
         out.append(f"Rotary.invertCode[{i}] := {st_bool(v)};")
     for i, c in enumerate(car.get("pocket_codes", []), 1):
         out.append(f"Rotary.pocketCode[{i}] := {c};")
+    lines = line_channels(data)
+    out += [f"Channels.home := {lines.get('home', -1)};",
+            f"Channels.pocket := {lines.get('pocket', -1)};"]
+    out += [f"Channels.{field_} := {map_channels.get(field_, -1)};" for field_ in MAP_CHANNELS]
     out += [f"Plant.pocketTime := {ms(sim.get('pocket_time_ms', 100))};",
             f"Plant.coastTime := {ms(sim.get('coast_ms', 0))};",
             f"Plant.skewScans := {sim.get('skew_scans', 0)};",
@@ -212,36 +365,199 @@ def generate(data: dict, source: str) -> str:
     return "\n".join(out) + "\n"
 
 
+# the simulated machine's first six tools (the LinuxCNC demo table); further tools get placeholder sizes
+SIM_TOOLS = [(6.0, 10.0, "end mill 6 mm"), (8.0, 12.0, "end mill 8 mm"), (10.0, 14.0, "end mill 10 mm"),
+             (12.0, 16.0, "end mill 12 mm"), (3.0, 8.0, "drill 3 mm"), (4.0, 9.0, "drill 4 mm")]
+
+
+def tool_table(data: dict) -> str:
+    """The LinuxCNC tool table of the simulated machine (generated from [carousel] pockets): tool n in pocket n,
+    as the changer holds them on its first start. No comment-only lines (LinuxCNC reads every line as a tool)."""
+    rows = []
+    for n in range(1, data["carousel"]["pockets"] + 1):
+        d, z, what = SIM_TOOLS[n - 1] if n <= len(SIM_TOOLS) else (2.0 + n % 10, 8.0 + n % 10, f"tool {n}")
+        rows.append(f"T{n} P{n} D{d:.3f} Z+{z:.3f} ;{what}")
+    return "\n".join(rows) + "\n"
+
+
 def report(ck: Checker) -> None:
     for d in ck.problems:
         print(d.render(), file=sys.stderr)
 
 
-def check_and_generate(config: Path, out: Path, write: bool, label: str | None = None) -> int:
-    """Check `config`; write `out` (write=True) or fail when it differs (drift). `label` names the source in the
-    generated header (default: the path as given), so the file is the same from wherever it is generated."""
+def map_channels(root: Path) -> tuple[dict[str, int], list[str]]:
+    """Channels of the changer lines placed by the register map (MAP_CHANNELS); problems as text."""
+    from .map.model import load as load_map
+    from .diagnostics import Diagnostics
+    diags = Diagnostics()
+    rmap = load_map(root / MAP_FILE, diags)
+    if rmap is None or diags.has_errors():
+        return {}, [d.render() for d in diags.sorted()] or [f"{MAP_FILE}: cannot be read"]
+    found = {}
+    for field_, name in MAP_CHANNELS.items():
+        sig = rmap.signal(name)
+        if sig is not None:
+            found[field_] = sig.address
+    return found, []
+
+
+def project_root(start: Path | None = None) -> Path:
+    from .testrunner import project_root as find
+    return find(start) or Path.cwd()
+
+
+def outputs(root: Path, data: dict, config_label: str) -> tuple[dict[str, str], list[str]]:
+    """{path relative to root: text} of the files the machine description generates itself (the FB, the tool
+    table and the sequence set's tool count); problems as text."""
+    chans, problems = map_channels(root)
+    if problems:
+        return {}, problems
+    files = {DEFAULT_OUT.as_posix(): generate(data, config_label, chans), TOOL_TABLE: tool_table(data)}
+    index = sequences_index(data, root)
+    rel = _rel(index, root)
+    try:
+        text = index.read_text()
+    except OSError as e:
+        return {}, [f"{rel}: cannot read: {e.strerror}"]
+    line, tools = tools_line(text)
+    if tools is not None:
+        lines = text.splitlines(keepends=True)
+        lines[line - 1] = re.sub(r"tools(\s*)=(\s*)\d+", lambda m: f"tools{m.group(1)}={m.group(2)}"
+                                 f"{data['carousel']['pockets']}", lines[line - 1], count=1)
+        files[rel] = "".join(lines)
+    return files, []
+
+
+def drift(root: Path, files: dict[str, str]) -> list[str]:
+    stale = []
+    for rel, text in files.items():
+        path = root / rel
+        if not path.exists() or path.read_text() != text:
+            stale.append(rel)
+    return stale
+
+
+def check_and_generate(config: Path, out: Path | None, write: bool, label: str | None = None,
+                       root: Path | None = None) -> int:
+    """Check `config` against the project at `root`; write every file it generates (write=True, then also the
+    register map's files and the sequence tables) or fail when one differs (drift)."""
+    root = root or project_root()
     data, ck = load(config)
+    if not ck.problems:
+        check_sequences(ck, data, root, label or config.as_posix())
     if ck.problems:
-        report(ck)
+        if not write or any("tools =" not in d.message for d in ck.problems):
+            report(ck)
+            return 1
+    label = label or _rel(config, root)
+    files, problems = outputs(root, data, label)
+    if problems:
+        for line in problems:
+            print(line, file=sys.stderr)
         return 1
-    text = generate(data, label or config.as_posix())
-    if write:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        if not out.exists() or out.read_text() != text:
-            out.write_text(text)
-            print(f"wrote {out}", file=sys.stderr)
-        return 0
-    if not out.exists() or out.read_text() != text:
-        print(f"{out}: error: out of date with {config}: run `plc machine generate`", file=sys.stderr)
+    if out is not None:
+        files[_rel(out, root)] = files.pop(DEFAULT_OUT.as_posix())
+    if not write:
+        stale = drift(root, files)
+        for rel in stale:
+            print(f"{rel}: error: out of date with {label}: run `plc machine generate`", file=sys.stderr)
+        return 1 if stale else 0
+    return write_all(root, files)
+
+
+def write_all(root: Path, files: dict[str, str]) -> int:
+    """Write the machine's files, then regenerate the register map and the sequence tables; nothing is written
+    when the map or the sequences would not check with the new machine."""
+    from .diagnostics import Diagnostics
+    from .map import generate as mapgen
+    from .seq.assemble import check_set
+    from .seq.stgen import generate as seqgen, stable_name
+    saved = {rel: (root / rel).read_text() if (root / rel).exists() else None for rel in files}
+    for rel, text in files.items():
+        _write(root / rel, text)
+    diags = Diagnostics()
+    loaded = mapgen.load_and_check(root / MAP_FILE, diags)
+    index = root / [rel for rel in files if rel.endswith(".toml")][0] if any(r.endswith(".toml") for r in files) \
+        else root / DEFAULT_SEQUENCES
+    from .seq.diagnostics import Diagnostics as SeqDiagnostics
+    seq_diags = SeqDiagnostics()
+    assembly = check_set(index, seq_diags)
+    if loaded is None or diags.has_errors() or assembly is None or seq_diags.errors:
+        for d in list(diags.sorted()) + list(seq_diags.errors):
+            if d.severity == "error":
+                print(d.render(), file=sys.stderr)
+        for rel, text in saved.items():         # nothing half-applied
+            if text is None:
+                (root / rel).unlink(missing_ok=True)
+            else:
+                _write(root / rel, text)
+        print("plc machine: nothing written", file=sys.stderr)
         return 1
+    written = [rel for rel in files if saved[rel] != files[rel]]
+    written += mapgen.write(loaded)
+    tables = root / SEQ_TABLES
+    text = seqgen(assembly, stable_name(index), stable_name(tables))
+    if not tables.exists() or tables.read_text() != text:
+        _write(tables, text)
+        written.append(SEQ_TABLES)
+    for rel in written:
+        print(f"wrote {rel}", file=sys.stderr)
     return 0
 
 
+def _write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8", newline="\n")
+    tmp.replace(path)
+
+
+def use(name: str, root: Path | None = None) -> int:
+    """Switch the project to configs/examples/NAME.toml and regenerate everything."""
+    root = root or project_root()
+    src = root / EXAMPLES / f"{name}.toml"
+    if not src.is_file():
+        known = sorted(p.stem for p in (root / EXAMPLES).glob("*.toml"))
+        print(f"plc machine use: error: no example '{name}' in {EXAMPLES}/ (known: {', '.join(known)})",
+              file=sys.stderr)
+        return 2
+    data, ck = load(src)
+    if ck.problems:
+        report(ck)
+        return 1
+    target = root / DEFAULT_CONFIG
+    previous = target.read_text() if target.exists() else None
+    _write(target, src.read_text())
+    status = check_and_generate(target, None, write=True, label=DEFAULT_CONFIG.as_posix(), root=root)
+    if status != 0 and previous is not None:
+        _write(target, previous)
+        return status
+    print(f"plc machine use: {DEFAULT_CONFIG} is now {EXAMPLES}/{name}.toml; everything regenerated", file=sys.stderr)
+    return status
+
+
 def add_parser(sub) -> None:
-    p = sub.add_parser("machine", help="check the machine configuration / generate its ST",
-                       description="Check configs/machine.toml (carousel, changer timing, simulation) with "
-                                   "file:line errors, and generate the ST function block FB_MachineConfig from it.")
-    p.add_argument("action", choices=["check", "generate"], help="check (also fails on drift) or generate")
-    p.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help=f"default {DEFAULT_CONFIG}")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"default {DEFAULT_OUT}")
-    p.set_defaults(func=lambda a: check_and_generate(a.config, a.out, a.action == "generate"))
+    p = sub.add_parser("machine", help="check the machine description / generate everything from it / switch",
+                       description="The machine description (configs/machine.toml) is the one place the changer "
+                                   "is configured. check: file:line errors, cross-checks with the register map and "
+                                   "the sequence set, and drift of every file generated from it. generate: write "
+                                   "FB_MachineConfig, the sequence set's tool count, the LinuxCNC tool table, then "
+                                   "the register map's files and the sequence tables. use NAME: copy "
+                                   "configs/examples/NAME.toml to configs/machine.toml and generate. Exit status: "
+                                   "0 ok, 1 errors or drift (nothing written), 2 usage.")
+    p.add_argument("action", choices=["check", "generate", "use"], help="check, generate, or use NAME")
+    p.add_argument("name", nargs="?", help="example machine for `use` (configs/examples/NAME.toml)")
+    p.add_argument("--config", type=Path, default=None, help=f"default {DEFAULT_CONFIG}")
+    p.add_argument("--out", type=Path, default=None, help=f"the generated FB (default {DEFAULT_OUT})")
+    p.set_defaults(func=_main)
+
+
+def _main(a) -> int:
+    root = project_root()
+    if a.action == "use":
+        if not a.name:
+            print("plc machine use: error: name the example (configs/examples/NAME.toml)", file=sys.stderr)
+            return 2
+        return use(a.name, root)
+    config = a.config or root / DEFAULT_CONFIG
+    return check_and_generate(config, a.out, a.action == "generate", root=root)

@@ -281,8 +281,10 @@ def _check_overlaps(rmap: RegisterMap, diags: Diagnostics) -> None:
         for a in range(sig.address, sig.last + 1):
             other = used.get((sig.table, a))
             if other is not None:
+                fix = "move one of them (the carousel lines: configs/machine.toml [channels], then " \
+                      "`plc machine generate`)" if sig.origin or other.origin else None
                 diags.error(rmap.pos(sig, "address"), f"{sig.name}: {sig.table} {a} is already taken by "
-                            f"{other.name}", f"{other.name} is at {rmap.pos(other, 'address')}")
+                            f"{other.name} at {rmap.pos(other, 'address')}", fix)
                 break
             used[(sig.table, a)] = sig
     hal_users: dict[str, Signal] = {}

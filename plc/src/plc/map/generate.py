@@ -102,7 +102,8 @@ def outputs(loaded: Loaded) -> dict[str, str]:
     current = program.read_text(encoding="utf-8") if program.is_file() else ""
     spliced = gen_st.splice(current, gen_st.region(rmap))
     if spliced is not None:
-        files[rmap.program_file] = spliced
+        wired = gen_st.splice_wiring(spliced, gen_st.wiring(rmap))
+        files[rmap.program_file] = wired if wired is not None else spliced
     return dict(sorted(files.items()))
 
 

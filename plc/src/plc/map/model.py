@@ -74,6 +74,7 @@ class Signal:
     enum: str = ""              # "reason_codes" or an ST enumeration type of st_src/
     states: list[str] = field(default_factory=list)   # explicit state names of an INT code: value = index
     hal: str = ""               # LinuxCNC side: a HAL pin (has a dot) or a bare HAL signal name
+    origin: Pos | None = None   # set for the carousel lines, which come from the machine description
 
     @property
     def words(self) -> int:
@@ -136,6 +137,9 @@ class RegisterMap:
     lines: KeyLines
     program: str = "AtcMain"
     program_file: str = "st_src/app/AtcMain.st"
+    machine: str = ""           # the machine description the carousel lines come from (relative to map.toml)
+    application: str = ""       # FB type holding the logic: its same-named pins are wired by the generator
+    instance: str = ""          # its instance in the PROGRAM
     configuration: str = "Config0"
     resource: str = "Res0"
     link: Link = field(default_factory=Link)
@@ -146,12 +150,16 @@ class RegisterMap:
     reason_lines: KeyLines | None = None
     reason_type: str = "DINT"
     reason_prefix: str = "REASON_"
+    wiring_inputs: dict[str, str] = field(default_factory=dict)   # [wiring.inputs] pin -> ST expression
+    wiring_series: dict[str, tuple[str, str]] = field(default_factory=dict)  # base -> (output array, restore array)
 
     def signal(self, name: str) -> Signal | None:
         key = name.upper()
         return next((s for s in self.signals if s.name.upper() == key), None)
 
     def pos(self, sig: Signal, key: str | None = None) -> Pos:
+        if sig.origin is not None:
+            return sig.origin
         return self.lines.pos("signal", sig.index, key)
 
     def reason_pos(self, reason: Reason, key: str | None = None) -> Pos:
@@ -175,7 +183,8 @@ _REQUIRED = ("name", "table", "address", "type", "direction", "description")
 _REASON_KEYS = {"code": int, "name": str, "severity": str, "text": str, "source": str, "rotary_error": str,
                 "error_id": int, "st_constant": str, "st_case": str}
 _SECTIONS = {
-    "map": {"program": str, "program_file": str, "configuration": str, "resource": str, "reason_codes": str},
+    "map": {"program": str, "program_file": str, "configuration": str, "resource": str, "reason_codes": str,
+            "machine": str, "application": str, "instance": str},
     "link": {"plc_alive": str, "plc_alive_toggle_ms": int, "plc_timeout_ms": int, "host_heartbeat": str,
              "host_heartbeat_period_ms": int, "host_timeout_ms": int},
     "linuxcnc": {"host": str, "port": int, "slave_id": int, "component": str, "update_rate_hz": (int, float),
@@ -236,12 +245,13 @@ def load(path: Path, diags: Diagnostics, root: Path | None = None) -> RegisterMa
     lines = KeyLines(display(path, root), text)
     rmap = RegisterMap(path=path, root=root, lines=lines)
     for section in data:
-        if section not in _SECTIONS and section != "signal":
+        if section not in _SECTIONS and section not in ("signal", "wiring"):
             diags.error(lines.pos(section), f"unknown section [{section}]",
                         "known: [map], [link], [linuxcnc], [[signal]]")
     _load_section(data, "map", rmap, lines, diags)
     _load_section(data, "link", rmap.link, lines, diags)
     _load_section(data, "linuxcnc", rmap.linuxcnc, lines, diags)
+    _load_wiring(data.get("wiring", {}), rmap, lines, diags)
     signals = data.get("signal", [])
     if not isinstance(signals, list):
         diags.error(lines.pos("signal"), "signal must be an array of tables: [[signal]]")
@@ -250,9 +260,45 @@ def load(path: Path, diags: Diagnostics, root: Path | None = None) -> RegisterMa
         sig = _load_signal(i, table, lines, diags)
         if sig is not None:
             rmap.signals.append(sig)
+    if rmap.machine:
+        _load_machine_lines(rmap, path.parent / rmap.machine, diags)
     reasons_file = data.get("map", {}).get("reason_codes", "reason_codes.toml")
     _load_reasons(rmap, path.parent / reasons_file, diags)
     return rmap
+
+
+def _load_wiring(table: dict, rmap: RegisterMap, lines: KeyLines, diags: Diagnostics) -> None:
+    """[wiring.inputs] pin = "ST expression"; [wiring.series.Base] output = "ArrayPin", restore = "array"."""
+    for key, value in table.items():
+        if key == "inputs" and isinstance(value, dict) and all(isinstance(v, str) for v in value.values()):
+            rmap.wiring_inputs = dict(value)
+        elif key == "series" and isinstance(value, dict) and all(
+                isinstance(v, dict) and isinstance(v.get("output"), str) for v in value.values()):
+            rmap.wiring_series = {b: (v["output"], v.get("restore", "")) for b, v in value.items()}
+        else:
+            diags.error(lines.pos("wiring"), f"[wiring] {key}: not understood",
+                        "known: [wiring.inputs] pin = \"ST expression\", "
+                        "[wiring.series.Base] output = \"ArrayPin\", restore = \"array\"")
+
+
+def _load_machine_lines(rmap: RegisterMap, path: Path, diags: Diagnostics) -> None:
+    """The carousel lines (home, pocket, code 1..6, Output ON, +DIR, -DIR) as signals, from the machine
+    description: their channels live there only, and a problem is reported at its line."""
+    from .. import machine
+    data, ck = machine.load(path)
+    name = display(path, rmap.root)
+    if ck.problems or data is None:
+        for d in ck.problems:
+            diags.error(Pos(name, d.pos.line, 1), d.message, "run: plc machine check")
+        return
+    first = len(rmap.signals) + 1000
+    for i, (key, channel) in enumerate(machine.line_channels(data).items()):
+        sig_name, table, description = machine.LINES[key]
+        section_key = "code" if key.startswith("code") else key
+        line = ck.line_of("channels", section_key)
+        rmap.signals.append(Signal(index=first + i, name=sig_name, table=table, address=channel, type="BOOL",
+                                   direction="input" if table == "discrete_input" else "output",
+                                   description=description, origin=Pos(name, line, 1)))
 
 
 def _load_section(data: dict, section: str, target: Any, lines: KeyLines, diags: Diagnostics) -> None:
