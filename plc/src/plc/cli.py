@@ -77,11 +77,8 @@ def cmd_run(args) -> int:
         raise UserError("no ST sources given and no project st_src/ found from here")
     in_project = root is not None and all(_inside(p, root) for p in paths)
     if in_project:
-        from . import machine
-        cfg = root / machine.DEFAULT_CONFIG
-        if cfg.exists() and machine.check_and_generate(cfg, root / machine.DEFAULT_OUT, write=False,
-                                                       label=machine.DEFAULT_CONFIG.as_posix()) != 0:
-            print("plc run: fix the machine configuration first (plc machine check / generate)", file=sys.stderr)
+        from .freshness import refuse_if_stale
+        if refuse_if_stale(root, "plc run"):
             return 1
     res = compile_sources(paths, portability=False)
     print_diagnostics(res, quiet=True)

@@ -107,14 +107,15 @@ REQUIRED = {"carousel": ("pockets", "inputs", "outputs", "homing")}
 DEFAULT_SEQUENCES = "configs/sequences/sequences.toml"
 
 
-def load(path: Path) -> tuple[dict | None, Checker]:
+def load(path: Path, label: str | None = None) -> tuple[dict | None, Checker]:
+    """Read and check a machine description; problems are reported at `label` (default: the path)."""
     try:
         text = path.read_text()
     except OSError as e:
-        ck = Checker(path, "")
+        ck = Checker(Path(label or path), "")
         ck.problem(0, f"cannot read: {e.strerror}")
         return None, ck
-    ck = Checker(path, text)
+    ck = Checker(Path(label or path), text)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -442,7 +443,7 @@ def check_and_generate(config: Path, out: Path | None, write: bool, label: str |
     """Check `config` against the project at `root`; write every file it generates (write=True, then also the
     register map's files and the sequence tables) or fail when one differs (drift)."""
     root = root or project_root()
-    data, ck = load(config)
+    data, ck = load(config, _rel(config, root))
     if not ck.problems:
         check_sequences(ck, data, root, label or config.as_posix())
     if ck.problems:

@@ -189,6 +189,11 @@ def cmd_test(args) -> int:
     if not paths:
         raise UserError("no test paths given and no project (st_src/ and iec_tests/) found from here")
     src = args.src if args.src is not None else ([str(root / "st_src")] if root else [])
+    if root is not None and args.src is None:
+        from .freshness import refuse_if_stale
+        if refuse_if_stale(root, "plc test"):
+            print("0 passed, 1 failed")
+            return 1
     build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
     t0 = time.perf_counter()
     try:

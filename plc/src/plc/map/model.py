@@ -285,8 +285,8 @@ def _load_machine_lines(rmap: RegisterMap, path: Path, diags: Diagnostics) -> No
     """The carousel lines (home, pocket, code 1..6, Output ON, +DIR, -DIR) as signals, from the machine
     description: their channels live there only, and a problem is reported at its line."""
     from .. import machine
-    data, ck = machine.load(path)
     name = display(path, rmap.root)
+    data, ck = machine.load(path, name)
     if ck.problems or data is None:
         for d in ck.problems:
             diags.error(Pos(name, d.pos.line, 1), d.message, "run: plc machine check")

@@ -75,7 +75,7 @@ def _context(seqset: SequenceSet, kind: Kind, tools: tuple[int, ...], note: str 
 
 
 def _default_context(kind: Kind, tool: int) -> Context:
-    """For a lone file without an index: every channel, every axis, all 32 tools, no P/Q values."""
+    """For a lone file without an index: every channel, every axis, all MAX_TOOLS tools, no P/Q values."""
     channels = frozenset(range(IO_CHANNELS))
     return Context(kind, (tool,), IoMap(channels, channels), "XYZABC", MAX_TOOLS, Values())
 

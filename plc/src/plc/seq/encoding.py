@@ -14,7 +14,7 @@ import enum
 from dataclasses import dataclass, field
 
 # --- limits (seed 003 and the runner's array bounds) -------------------------------------------------------------
-MAX_TOOLS = 32  # Logosol CNC supports up to 32 tools
+MAX_TOOLS = 50  # one tool per carousel pocket: the Logosol carousel has up to 50 pockets (plc.machine.MAX_POCKETS)
 P_COUNT = 230  # P1..P230, the seed's P table (23 rows of 10)
 Q_COUNT = 20  # TnQ1..TnQ20 per tool, the seed's Q table (2 rows of 10 per tool)
 IO_CHANNELS = 64  # channel n is %IX/%QX (n / 8).(n mod 8); the runner's arrays are ARRAY[0..63] OF BOOL

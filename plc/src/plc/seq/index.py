@@ -153,7 +153,7 @@ class _IndexReader:
             name = ""
         tools = table.get("tools")
         if tools is None:
-            self.error(("machine",), "[machine] needs 'tools', the number of tools (1..32)")
+            self.error(("machine",), f"[machine] needs 'tools', the number of tools (1..{MAX_TOOLS})")
             tools = 0
         elif isinstance(tools, bool) or not isinstance(tools, int) or not 1 <= tools <= MAX_TOOLS:
             self.error(("machine", "tools"), f"[machine] tools must be a whole number 1..{MAX_TOOLS}, got {tools!r}")

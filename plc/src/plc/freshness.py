@@ -1,0 +1,83 @@
+"""Are the generated files of the project up to date with their sources?
+
+`plc run` and `plc test` refuse to run a program built from stale generated files: the machine description
+(configs/machine.toml -> FB_MachineConfig, tool table, the sequence set's tool count), the register map
+(modbus_map/ -> AtcMain's declarations and wiring, HMI tags, LinuxCNC files, docs) and the sequences
+(configs/sequences/ -> SequenceTables.st). Each problem names the command that regenerates the files.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .diagnostics import Diagnostics
+
+SEQ_INDEX = "configs/sequences/sequences.toml"
+SEQ_TABLES = "st_src/sequence/generated/SequenceTables.st"
+
+
+def problems(root: Path) -> list[str]:
+    """One line per stale or broken source, each with the command that fixes it; [] when all is fresh."""
+    return _machine(root) + _map(root) + _sequences(root)
+
+
+def _machine(root: Path) -> list[str]:
+    from . import machine
+    config = root / machine.DEFAULT_CONFIG
+    if not config.is_file():
+        return []
+    data, ck = machine.load(config, machine.DEFAULT_CONFIG.as_posix())
+    if not ck.problems:
+        machine.check_sequences(ck, data, root, machine.DEFAULT_CONFIG.as_posix())
+    if ck.problems:
+        return [d.render() for d in ck.problems] + ["  fix the machine description (plc machine check), then run "
+                                                    "`plc machine generate`"]
+    files, errors = machine.outputs(root, data, machine.DEFAULT_CONFIG.as_posix())
+    if errors:
+        return errors
+    return [f"{rel}: out of date with {machine.DEFAULT_CONFIG.as_posix()}: run `plc machine generate`"
+            for rel in machine.drift(root, files)]
+
+
+def _map(root: Path) -> list[str]:
+    from .map.generate import drift, load_and_check
+    path = root / "modbus_map" / "map.toml"
+    if not path.is_file():
+        return []
+    diags = Diagnostics()
+    loaded = load_and_check(path, diags)
+    if loaded is None or diags.has_errors():
+        return [d.render() for d in diags.sorted() if d.severity == "error"][:10] + \
+            ["  fix the register map (plc map check), then run `plc map generate`"]
+    return [f"{rel}: out of date with modbus_map/map.toml: run `plc map generate`"
+            for rel in drift(loaded, Diagnostics(), show_diff=False)]
+
+
+def _sequences(root: Path) -> list[str]:
+    from .seq.assemble import check_set
+    from .seq.diagnostics import Diagnostics as SeqDiagnostics
+    from .seq.stgen import generate, stable_name
+    index, tables = root / SEQ_INDEX, root / SEQ_TABLES
+    if not index.is_file():
+        return []
+    fix = f"plc seq compile {SEQ_INDEX} --out {SEQ_TABLES}"
+    diags = SeqDiagnostics()
+    assembly = check_set(index, diags)
+    if assembly is None or diags.errors:
+        return [d.render() for d in diags.errors][:10] + [f"  fix the sequences (plc seq check {SEQ_INDEX}), "
+                                                          f"then run `{fix}`"]
+    text = generate(assembly, stable_name(index), stable_name(tables))
+    if not tables.is_file() or tables.read_text(encoding="utf-8") != text:
+        return [f"{SEQ_TABLES}: out of date with the sequences in configs/sequences/: run `{fix}`"]
+    return []
+
+
+def refuse_if_stale(root: Path, command: str) -> bool:
+    """Print the problems and return True when `command` (e.g. 'plc run') must not go on."""
+    import sys
+    found = problems(root)
+    if not found:
+        return False
+    for line in found:
+        print(line, file=sys.stderr)
+    print(f"{command}: the generated files are not up to date with their sources: nothing was run", file=sys.stderr)
+    return True
