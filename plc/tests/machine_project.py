@@ -24,7 +24,15 @@ def plc(*args: str, cwd: Path, timeout: float = 600) -> subprocess.CompletedProc
 
 def project_for(name: str, where: Path) -> Path:
     """A project copy under `where` whose machine is configs/examples/NAME.toml, everything regenerated."""
-    root = where / name
+    root = copy_project(where / name)
+    result = plc("machine", "use", name, cwd=root)
+    if result.returncode != 0:
+        raise RuntimeError(f"plc machine use {name} failed:\n{result.stderr}")
+    return root
+
+
+def copy_project(root: Path) -> Path:
+    """A copy of the project (as it is, default machine) at `root`."""
     if root.exists():
         shutil.rmtree(root)
     root.mkdir(parents=True)
@@ -35,7 +43,4 @@ def project_for(name: str, where: Path) -> Path:
         src, dst = REPO / rel, root / rel
         dst.parent.mkdir(parents=True, exist_ok=True)
         (shutil.copytree if src.is_dir() else shutil.copy2)(src, dst)
-    result = plc("machine", "use", name, cwd=root)
-    if result.returncode != 0:
-        raise RuntimeError(f"plc machine use {name} failed:\n{result.stderr}")
     return root

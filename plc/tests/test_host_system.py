@@ -114,6 +114,18 @@ def test_t0_unloads_and_the_same_tool_is_no_change(plc):
     assert ok(plc.host("T0 M6")).splitlines()[-1] == "tool 0 in spindle"
 
 
+def test_t0_is_legal_with_an_empty_spindle_and_the_next_m6_completes(plc):
+    """Issue 13: `plc host T0` then `plc host "T5 M6"` used to exit 3 (soft fault 106 latched by the T0 prepare)."""
+    ok(plc.host("clear", "T0 M6"))                  # an empty spindle to start from
+    assert ok(plc.host("T0 M6")).splitlines()[-1] == "tool 0 in spindle"
+    ok(plc.host("T0"))
+    client, tags = plc.tags()
+    with client:
+        assert tags.read("FaultReason", "ToolInSpindle") == {"FaultReason": 0, "ToolInSpindle": 0}
+    assert ok(plc.host("T5 M6")).splitlines()[-1] == "tool 5 in spindle"
+    assert ok(plc.host("T0 M6")).splitlines()[-1] == "tool 0 in spindle"
+
+
 def test_a_pocket_outside_the_carousel_is_a_soft_fault_and_clear_recovers(plc):
     result = plc.host("T0 M6", "T60 M6")
     out = result.stdout
