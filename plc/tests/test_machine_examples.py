@@ -47,6 +47,17 @@ def test_the_example_checks_clean_and_nothing_drifts(example):
         assert ": warning:" not in result.stderr, f"{name}: plc {' '.join(args)}\n{result.stderr}"
 
 
+def test_plc_deploy_openplc_bundles_the_example(example):
+    name, root = example
+    out = root / "deploy" / "atc_openplc.st"
+    result = plc("deploy", "openplc", "--out", str(out), cwd=root)
+    assert result.returncode == 0, f"{name}:\n{result.stderr}"
+    text = out.read_text()
+    assert "CONFIGURATION Config0" in text and "FUNCTION_BLOCK FB_MachineConfig" in text
+    pockets = pockets_of(root)
+    assert f"Rotary.pockets := {pockets};" in text
+
+
 def test_the_machine_scan_tests_pass(example):
     name, root = example
     result = plc("test", "-q", *SCAN_TESTS, "--build-dir", str(root / "build" / "plc-test"), cwd=root,

@@ -176,19 +176,6 @@ def check_bundle(text: str, diags: Diagnostics) -> tuple[int, int]:
         return len(result.diags.errors), len(result.diags.warnings)
 
 
-def _map_drift(root: Path) -> list[str]:
-    """Generated files of the register map that are out of date (the deployed program must match the map)."""
-    from .map.generate import drift, load_and_check
-    map_path = root / "modbus_map" / "map.toml"
-    if not map_path.is_file():
-        return []
-    diags = Diagnostics()
-    loaded = load_and_check(map_path, diags)
-    if loaded is None or diags.has_errors():
-        return [f"{map_path}: the register map has errors (plc map check)"]
-    return [f"{rel}: out of date with the register map (plc map generate)" for rel in drift(loaded, Diagnostics())]
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="plc deploy", description="Bundle the application for another runtime "
                                 "(openplc), or install and upgrade our soft-PLC as a systemd service (service, "
@@ -227,7 +214,8 @@ def main(argv: list[str]) -> int:
               file=sys.stderr)
         return EXIT_USAGE
     if root is not None and not args.src:
-        stale = _map_drift(root)
+        from .freshness import problems
+        stale = problems(root)          # machine description, register map and sequences alike
         if stale:
             for line in stale:
                 print(f"plc deploy: error: {line}", file=sys.stderr)
