@@ -34,7 +34,7 @@ def test_missing_input_file_exits_two():
 
 
 def test_bad_tool_number_exits_two():
-    assert run_cli("check", "--tool", "33", CORPUS / "valid" / "get.seq").status == 2
+    assert run_cli("check", "--tool", "51", CORPUS / "valid" / "get.seq").status == 2
 
 
 def test_unwritable_output_exits_two(tmp_path):
