@@ -13,8 +13,10 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
+from ..machine import MAX_POCKETS
+
 # --- limits (seed 003 and the runner's array bounds) -------------------------------------------------------------
-MAX_TOOLS = 50  # one tool per carousel pocket: the Logosol carousel has up to 50 pockets (plc.machine.MAX_POCKETS)
+MAX_TOOLS = MAX_POCKETS  # one tool per carousel pocket (pocket n holds tool n): the machine's pocket limit
 P_COUNT = 230  # P1..P230, the seed's P table (23 rows of 10)
 Q_COUNT = 20  # TnQ1..TnQ20 per tool, the seed's Q table (2 rows of 10 per tool)
 IO_CHANNELS = 64  # channel n is %IX/%QX (n / 8).(n mod 8); the runner's arrays are ARRAY[0..63] OF BOOL
