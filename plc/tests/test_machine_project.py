@@ -44,6 +44,8 @@ def refused_by_run(root: Path, *needles: str) -> str:
     ('inputs = "home+pocket"', 'inputs = "code"\npocket_codes = [6, 7, 3, 1, 5]\n#',
      "[carousel] pocket_codes: 5 codes for 6 pockets"),
     ("plus_dir = 20 ", "plus_dir = 16 ", "[channels] plus_dir and on are both on output channel 16"),
+    ("plus_dir = 20 ", "plus_dir = 18 ", "[channels] plus_dir = 18 is also a sequence output "
+                                          "(configs/sequences/sequences.toml:17 [io] outputs)"),
 ])
 def test_a_wrong_machine_file_is_a_positioned_error_before_anything_runs(project, old, new, message):
     path = project / MACHINE

@@ -287,11 +287,30 @@ def check_sequences(ck: Checker, data: dict, root: Path, label: str) -> None:
         return
     line, tools = tools_line(text)
     pockets = data["carousel"]["pockets"]
+    check_sequence_outputs(ck, data, text, _rel(index, root))
     if tools != pockets:
         rel = _rel(index, root)
         ck.error("carousel", "pockets",
                  f"[carousel] pockets = {pockets}, but {rel}:{line} has tools = {tools}: the sequences must cover "
                  f"tools 1..{pockets} (pocket n holds tool n); run `plc machine generate`, which writes it")
+
+
+def check_sequence_outputs(ck: Checker, data: dict, text: str, rel: str) -> None:
+    """No carousel motor line on a channel the sequences may write with OUT (two owners of one output)."""
+    try:
+        outputs = tomllib.loads(text).get("io", {}).get("outputs", [])
+    except tomllib.TOMLDecodeError:
+        return                      # the sequence tools report it
+    channels: set[int] = set()
+    for item in outputs if isinstance(outputs, list) else []:
+        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", str(item))
+        if m:
+            channels.update(range(int(m.group(1)), int(m.group(2) or m.group(1)) + 1))
+    line = next((n for n, raw in enumerate(text.splitlines(), 1) if re.match(r"\s*outputs\s*=", raw)), 1)
+    for key, channel in line_channels(data).items():
+        if LINES[key][1] == "coil" and channel in channels:
+            ck.error("channels", key, f"[channels] {key} = {channel} is also a sequence output ({rel}:{line} "
+                                      f"[io] outputs): two owners of one output channel")
 
 
 def _rel(path: Path, root: Path) -> str:

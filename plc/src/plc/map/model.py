@@ -296,9 +296,16 @@ def _load_machine_lines(rmap: RegisterMap, path: Path, diags: Diagnostics) -> No
         sig_name, table, description = machine.LINES[key]
         section_key = "code" if key.startswith("code") else key
         line = ck.line_of("channels", section_key)
-        rmap.signals.append(Signal(index=first + i, name=sig_name, table=table, address=channel, type="BOOL",
-                                   direction="input" if table == "discrete_input" else "output",
-                                   description=description, origin=Pos(name, line, 1)))
+        sig = Signal(index=first + i, name=sig_name, table=table, address=channel, type="BOOL",
+                     direction="input" if table == "discrete_input" else "output",
+                     description=description, origin=Pos(name, line, 1))
+        # listed among the map's own physical lines in address order (generated files, docs, tags)
+        at = next((k for k, s in enumerate(rmap.signals) if s.table == table and s.direction == sig.direction
+                   and s.address > channel), None)
+        if at is None:
+            at = max((k + 1 for k, s in enumerate(rmap.signals) if s.direction == sig.direction),
+                     default=len(rmap.signals))
+        rmap.signals.insert(at, sig)
 
 
 def _load_section(data: dict, section: str, target: Any, lines: KeyLines, diags: Diagnostics) -> None:
