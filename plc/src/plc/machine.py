@@ -463,6 +463,9 @@ def check_and_generate(config: Path, out: Path | None, write: bool, label: str |
     register map's files and the sequence tables) or fail when one differs (drift)."""
     root = root or project_root()
     data, ck = load(config, _rel(config, root))
+    if not write and config.resolve() != (root / DEFAULT_CONFIG).resolve():
+        report(ck)                  # another file (e.g. an example): its own checks only, not the project's
+        return 1 if ck.problems else 0
     if not ck.problems:
         check_sequences(ck, data, root, label or config.as_posix())
     if ck.problems:
@@ -567,7 +570,8 @@ def add_parser(sub) -> None:
                                    "0 ok, 1 errors or drift (nothing written), 2 usage.")
     p.add_argument("action", choices=["check", "generate", "use"], help="check, generate, or use NAME")
     p.add_argument("name", nargs="?", help="example machine for `use` (configs/examples/NAME.toml)")
-    p.add_argument("--config", type=Path, default=None, help=f"default {DEFAULT_CONFIG}")
+    p.add_argument("--config", type=Path, default=None,
+                   help=f"default {DEFAULT_CONFIG}; `check` of another file (e.g. an example) checks that file alone")
     p.add_argument("--out", type=Path, default=None, help=f"the generated FB (default {DEFAULT_OUT})")
     p.set_defaults(func=_main)
 
