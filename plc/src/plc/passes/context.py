@@ -73,6 +73,7 @@ class Program:
     sites: list[Site] = field(default_factory=list)
     array_types: list[T.ArrayType] = field(default_factory=list)
     builtin_files: set[str] = field(default_factory=set)
+    facts: list[portability.Fact] = field(default_factory=list)   # the passes' portability facts
 
     def site(self, pos: Pos, pou: str) -> int:
         self.sites.append(Site(pos, pou))
@@ -115,10 +116,11 @@ class SemanticState:
         self.d.warning(pos, msg, hint, code)
 
     def port(self, pos: Pos, rule: str, **details: str) -> None:
-        """Record a portability fact (a rule of portability.RULES) where it was found; built-in files are exempt."""
+        """Record a portability fact (a rule of portability.RULES) where it was found, for the portability pass;
+        built-in files are exempt."""
         if pos.file in self.prog.builtin_files:
             return
-        portability.report(self.d, rule, pos, **details)
+        self.prog.facts.append(portability.fact(rule, pos, **details))
 
     def in_builtin(self) -> bool:
         return self.current_pou is not None and self.current_pou.pos.file in self.prog.builtin_files
