@@ -229,7 +229,7 @@ void hist_add(histogram_t *h, uint64_t ns);
 uint64_t hist_percentile(const histogram_t *h, double p);
 
 typedef struct scan_stats {
-    histogram_t scan;              /* execution time of a scan: wake-up to the end of its work */
+    histogram_t scan;              /* execution time of a scan: input latch to the end of its work */
     histogram_t core;              /* of which the scan core: input latch to output publication */
     histogram_t run;               /* of which the program itself: the run() call */
     histogram_t wake;              /* wake-up latency after the deadline */
