@@ -322,6 +322,8 @@ int scan_run(runtime_t *rt)
     rt->core.io = (plc_scan_io_t){ .ctx = rt, .read_inputs = rt_read_inputs, .write_outputs = rt_write_outputs };
     rt->core.run = rt_run_tasks;
     rt->core.run_ctx = rt;
+    /* Forcing and monitoring (the HMI) plug into rt->core.hooks: after_inputs (forced inputs),
+     * before_outputs (forced outputs) and scan_done (snapshot); all NULL until then. */
 
     rt->state = PLC_STATE_RUNNING;
     pthread_mutex_lock(&rt->lock);
