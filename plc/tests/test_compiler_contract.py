@@ -220,3 +220,21 @@ def test_the_stages_record_facts_and_only_the_portability_pass_warns():
     portability.lint([tree], prog, diags, set())
     got = [(d.code, d.pos.line, d.pos.col) for d in diags.warnings]
     assert got[:3] == [("portability.comment", 1, 1), ("portability.global", 2, 1), ("portability.time-unit", 5, 6)]
+
+
+def test_each_semantic_pass_is_a_class_of_its_own_module_run_by_name():
+    """No mixin analyzer: driver.SEMANTIC_PASSES names the passes, each a Pass subclass in its own module,
+    sharing one SemanticState."""
+    from plc import driver, sema
+    from plc.passes.context import Pass, SemanticState
+    assert list(driver.SEMANTIC_PASSES) == list(sema.PASSES)
+    classes = [*sema.PASSES.values(), *sema.HELPERS.values()]
+    assert all(cls.__bases__ == (Pass,) for cls in classes)
+    assert len({cls.__module__ for cls in classes}) == len(classes)
+    diags = Diagnostics()
+    files = [parse("PROGRAM Main\nVAR n : INT; END_VAR\nn := n + 1;\nEND_PROGRAM\n", "t.st", diags)]
+    prog = sema.analyze(files, diags, driver.SEMANTIC_PASSES)
+    assert not diags.items and prog.pous["MAIN"].scope.vars["N"].type.name == "INT"
+    # the passes' shared state is one object; a pass's own working state stays with the pass
+    st = SemanticState(files, Diagnostics())
+    assert not hasattr(st, "resolving") and not hasattr(st, "loop")
