@@ -151,7 +151,7 @@ static void apply_writes(world_t *w, int mid) {
         if (ww->scan != w->scan || ww->mid != mid)
             continue;
         for (uint32_t k = 0; k < w->core.n_bindings; k++)
-            if (w->core.bindings[k].located == ww->loc)
+            if (&w->core.prog->located[w->core.bindings[k].located] == ww->loc)
                 put_slot(w->core.bindings[k].slot, w->core.bindings[k].size, ww->value);
     }
 }
@@ -166,8 +166,9 @@ static int world_read_inputs(void *ctx, plc_image_t *image) {
 static void print_image(const world_t *w, const char *tag) {
     for (uint32_t k = 0; k < w->core.n_bindings; k++) {
         const plc_binding_t *b = &w->core.bindings[k];
-        printf("%s %s %u ", tag, b->located->address, (unsigned)b->located->type);
-        print_value(b->located->type, b->slot, b->size);
+        const plc_located_t *l = &w->core.prog->located[b->located];
+        printf("%s %s %u ", tag, l->address, (unsigned)l->type);
+        print_value(l->type, b->slot, b->size);
         putchar('\n');
     }
 }

@@ -220,24 +220,20 @@ void image_publish(runtime_t *rt)
     memcpy(b->discrete, p->ix, MAP_BITS);
     memcpy(b->input_regs, p->iw, sizeof p->iw);
     /* Holding registers: only the program's; the others change only by host
-     * writes, which the Modbus image already holds. */
+     * writes, which the Modbus image already holds.  Where a binding's slot
+     * lies in the image says which register it is. */
     for (uint32_t i = core->n_inputs; i < core->n_bindings; i++) {
-        const plc_located_t *l = core->bindings[i].located;
-        unsigned n = l->index;
+        const char *slot = core->bindings[i].slot;
 
-        switch (l->size) {
-        case 'W':
-            b->holding[(l->area == 'Q' ? MAP_HOLD_QW : MAP_HOLD_MW) + n] = l->area == 'Q' ? p->qw[n] : p->mw[n];
-            break;
-        case 'D':
-            put_md(b, n, p->md[n].u);
-            break;
-        case 'L':
-            put_ml(b, n, p->ml[n].u);
-            break;
-        default:            /* coils: copied above */
-            break;
-        }
+        if (slot >= (const char *)p->qw && slot < (const char *)(p->qw + MAP_WORDS))
+            b->holding[MAP_HOLD_QW + (size_t)((const uint16_t *)slot - p->qw)] = *(const uint16_t *)slot;
+        else if (slot >= (const char *)p->mw && slot < (const char *)(p->mw + MAP_WORDS))
+            b->holding[MAP_HOLD_MW + (size_t)((const uint16_t *)slot - p->mw)] = *(const uint16_t *)slot;
+        else if (slot >= (const char *)p->md && slot < (const char *)(p->md + MAP_WORDS))
+            put_md(b, (unsigned)((const plc_slot32_t *)slot - p->md), ((const plc_slot32_t *)slot)->u);
+        else if (slot >= (const char *)p->ml && slot < (const char *)(p->ml + MAP_WORDS))
+            put_ml(b, (unsigned)((const plc_slot64_t *)slot - p->ml), ((const plc_slot64_t *)slot)->u);
+        /* else a coil: copied above */
     }
     if (b->any_dirty)
         overlay_pending(b);

@@ -142,7 +142,7 @@ int plc_scan_bind(plc_scan_t *s, const plc_program_t *prog, plc_image_t *image,
                 *l->ptr = shared->var;
                 continue;
             }
-            s->bindings[s->n_bindings++] = (plc_binding_t){ *l->ptr, slot, want, l };
+            s->bindings[s->n_bindings++] = (plc_binding_t){ *l->ptr, slot, want, i };
             s->n_inputs += l->area == 'I';
         }
     }

@@ -60,12 +60,12 @@ typedef struct plc_image {
     plc_slot64_t ml[PLC_MAP_WORDS];
 } plc_image_t;
 
-/* One located variable bound to its image slot. */
+/* One located variable bound to its image slot (24 bytes: the scan walks these, not the located table). */
 typedef struct plc_binding {
     void *var;                     /* the program's storage (*located.ptr after init()) */
     void *slot;                    /* its place in the image */
     uint32_t size;                 /* bytes */
-    const plc_located_t *located;
+    uint32_t located;              /* its entry in prog->located */
 } plc_binding_t;
 
 /* The host's world: where inputs come from and outputs go.  Either may be NULL. */
