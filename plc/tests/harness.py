@@ -205,6 +205,7 @@ class ScanRun:
     located: dict[str, Located] = field(default_factory=dict)     # by variable path
     image: list[dict[str, object]] = field(default_factory=list)       # per scan: address -> image slot at scan end
     mid_image: list[dict[str, object]] = field(default_factory=list)   # per scan: the slot after the tasks ran
+    done: list[int] = field(default_factory=list)        # scan numbers the core's scan_done hook reported
 
     def path(self, name: str) -> str:
         """Full upper-case path of `Program.var...` (or of a full CONFIG0... path)."""
@@ -253,14 +254,17 @@ def _world_args(flag: str, writes: World | None) -> list[str]:
 
 
 def run_c(c_text: str, scans: int, paths: list[str] | None = None, last_only: bool = False,
-          before_latch: World | None = None, mid_scan: World | None = None) -> ScanRun:
+          before_latch: World | None = None, mid_scan: World | None = None,
+          forced: dict[str, int] | None = None) -> ScanRun:
     """Run the program `scans` scans through the scan core.  The world writes image slots of located variables:
-    `before_latch` just before the input latch of a scan, `mid_scan` after the latch, before the tasks."""
+    `before_latch` just before the input latch of a scan, `mid_scan` after the latch, before the tasks.
+    `forced` forces located variables (address -> value) through the core's forcing hooks in every scan."""
     exe = build_c(c_text)
     args = [str(exe), str(scans)]
     if last_only:
         args.append("-l")
     args += _world_args("-w", before_latch) + _world_args("-m", mid_scan)
+    args += [a for addr, v in (forced or {}).items() for a in ("-f", f"{addr}={int(v)}")]
     args += paths or []
     try:
         proc = subprocess.run(args, capture_output=True, text=True, timeout=RUN_TIMEOUT,
@@ -289,6 +293,8 @@ def run_c(c_text: str, scans: int, paths: list[str] | None = None, last_only: bo
             run.scans.append({})
             run.faults.append(None)
             run.image.append({})
+        elif kind == "done":
+            run.done.append(int(rest))
         elif kind in ("i", "m"):
             addr, code, val = rest.split(" ", 2)
             if kind == "m":       # printed during the scan, before its "scan" line
@@ -310,7 +316,8 @@ def run_c(c_text: str, scans: int, paths: list[str] | None = None, last_only: bo
 
 
 def run_st(text: str, scans: int = 1, paths: list[str] | None = None, last_only: bool = False,
-           interval: str = "T#4ms", before_latch: World | None = None, mid_scan: World | None = None) -> ScanRun:
+           interval: str = "T#4ms", before_latch: World | None = None, mid_scan: World | None = None,
+           forced: dict[str, int] | None = None) -> ScanRun:
     """Compile `text` (adding a configuration if it has none), run `scans` scans, return the values."""
     full, inst = with_config(text, interval)
     res = compile_st(full)
@@ -318,6 +325,6 @@ def run_st(text: str, scans: int = 1, paths: list[str] | None = None, last_only:
         raise HarnessError("snippet does not compile:\n" + render(res))
     tmp = ScanRun(0, [], instances=inst)
     wanted = [tmp.path(p) for p in paths] if paths else None
-    run = run_c(res.c_text, scans, wanted, last_only, before_latch, mid_scan)
+    run = run_c(res.c_text, scans, wanted, last_only, before_latch, mid_scan, forced)
     run.instances = inst
     return run

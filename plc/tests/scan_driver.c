@@ -20,14 +20,17 @@
  *                                    after the scan; not with -l)
  *   m <ADDRESS> <type> <value>     (the same slot mid-scan: after the tasks ran,
  *                                    before output publication; not with -l)
+ *   done <n>                       (the scan core's scan_done hook, scan n complete)
  *   fault <kind> <pou> <line> <col>   (after a scan whose run() returned non-zero)
  *   end
  *
- * Usage: scan_driver SCANS [-l] [-w N:ADDRESS=VALUE]... [-m N:ADDRESS=VALUE]... [PATH ...]
+ * Usage: scan_driver SCANS [-l] [-w N:ADDRESS=VALUE]... [-m N:ADDRESS=VALUE]... [-f ADDRESS=VALUE]... [PATH ...]
  *   -l      print variables after the last scan only
  *   -w      the world writes VALUE into the image slot of ADDRESS just before
  *           the input latch of scan N (1-based)
  *   -m      the world writes it mid-scan: after the latch of scan N, before its tasks
+ *   -f      force the located variable at ADDRESS to VALUE in every scan, through the core's
+ *           forcing hooks: an input after the latch, an output before the publication
  *   PATH    print only these variables (upper-case paths); default: all
  * ADDRESS is the address of a located variable as written ("%IX0.0").
  */
@@ -134,6 +137,8 @@ typedef struct world {
     int n_writes;
     long scan;                 /* the scan running, 1-based */
     int print_image;
+    world_write_t forces[MAX_WRITES];   /* scan unused: every scan */
+    int n_forces;
 } world_t;
 
 static void put_slot(void *slot, uint32_t size, long long v) {
@@ -163,6 +168,28 @@ static int world_read_inputs(void *ctx, plc_image_t *image) {
     return 1;      /* the world may have written any slot */
 }
 
+/* Forcing through the core's hooks, as the HMI will: inputs after the latch, outputs before publication. */
+static void apply_forces(world_t *w, int inputs) {
+    for (int i = 0; i < w->n_forces; i++) {
+        const plc_located_t *l = w->forces[i].loc;
+        if ((l->area == 'I') == inputs)
+            put_slot(*l->ptr, plc_located_bytes(l->size), w->forces[i].value);
+    }
+}
+
+static void force_inputs(void *ctx) {
+    apply_forces(ctx, 1);
+}
+
+static void force_outputs(void *ctx) {
+    apply_forces(ctx, 0);
+}
+
+static void scan_done(void *ctx, uint64_t scan_no) {
+    (void)ctx;
+    printf("done %llu\n", (unsigned long long)scan_no);
+}
+
 static void print_image(const world_t *w, const char *tag) {
     for (uint32_t k = 0; k < w->core.n_bindings; k++) {
         const plc_binding_t *b = &w->core.bindings[k];
@@ -187,17 +214,27 @@ static int world_run(void *ctx, uint64_t tick) {
 static int parse_write(world_t *w, const char *arg, int mid) {
     const plc_program_t *p = &plc_program;
     char *end;
-    long scan = strtol(arg, &end, 10);
-    if (*end != ':' || w->n_writes >= MAX_WRITES)
+    long scan = 0;
+    const char *addr = arg;
+    if (mid >= 0) {          /* -w/-m N:ADDRESS=VALUE; -f ADDRESS=VALUE (mid -1) */
+        scan = strtol(arg, &end, 10);
+        if (*end != ':' || w->n_writes >= MAX_WRITES)
+            return -1;
+        addr = end + 1;
+    } else if (w->n_forces >= MAX_WRITES) {
         return -1;
-    const char *addr = end + 1;
+    }
     const char *eq = strchr(addr, '=');
     if (eq == NULL)
         return -1;
     for (uint32_t i = 0; i < p->n_located; i++) {
         const plc_located_t *l = &p->located[i];
         if (strlen(l->address) == (size_t)(eq - addr) && strncmp(l->address, addr, (size_t)(eq - addr)) == 0) {
-            w->writes[w->n_writes++] = (world_write_t){ scan, mid, l, strtoll(eq + 1, NULL, 0) };
+            world_write_t ww = { scan, mid, l, strtoll(eq + 1, NULL, 0) };
+            if (mid < 0)
+                w->forces[w->n_forces++] = ww;
+            else
+                w->writes[w->n_writes++] = ww;
             return 0;
         }
     }
@@ -218,8 +255,10 @@ int main(int argc, char **argv) {
         if (strcmp(argv[first], "-l") == 0) {
             last_only = 1;
             first++;
-        } else if ((strcmp(argv[first], "-w") == 0 || strcmp(argv[first], "-m") == 0) && first + 1 < argc) {
-            if (parse_write(w, argv[first + 1], argv[first][1] == 'm') != 0) {
+        } else if ((strcmp(argv[first], "-w") == 0 || strcmp(argv[first], "-m") == 0 ||
+                    strcmp(argv[first], "-f") == 0) && first + 1 < argc) {
+            int mid = argv[first][1] == 'f' ? -1 : argv[first][1] == 'm';
+            if (parse_write(w, argv[first + 1], mid) != 0) {
                 fprintf(stderr, "bad %s %s: expected N:ADDRESS=VALUE at a located variable\n", argv[first],
                         argv[first + 1]);
                 return 2;
@@ -257,6 +296,8 @@ int main(int argc, char **argv) {
     w->core.io = (plc_scan_io_t){ .ctx = w, .read_inputs = world_read_inputs };
     w->core.run = world_run;
     w->core.run_ctx = w;
+    w->core.hooks = (plc_scan_hooks_t){ .ctx = w, .after_inputs = force_inputs, .before_outputs = force_outputs,
+                                        .scan_done = w->print_image ? scan_done : NULL };
     for (long tick = 0; tick < scans; tick++) {
         w->scan = tick + 1;
         /* The faulted program's run() is not called again: report its fault on every scan. */

@@ -3,7 +3,8 @@
 ST programs run through the same core as the soft-PLC runtime and `plc test` (tests/scan_driver.c links it, with a
 simulated clock and direct I/O), so these tests prove what the runtime does at the scan's edges: an input is read once
 per scan, outputs reach the world only when the scan ends, each task runs on its own ticks, a stopped program's coils
-go FALSE.  The last test checks that every host really goes through the core.
+go FALSE, forced values act after the latch and before the publication.  The last test checks that every host really
+goes through the core.
 """
 from __future__ import annotations
 
@@ -165,6 +166,38 @@ def test_programs_that_locate_one_input_both_see_it():
     run = run_st(SHARED_INPUT, scans=2, before_latch={2: {"%IX0.0": 1}})
     assert run.series("First.seen") == [False, True]
     assert run.series("Second.seen") == [False, True]
+
+
+FORCE = """
+PROGRAM Main
+VAR
+    start AT %IX0.0 : BOOL;     (* an input the test forces TRUE *)
+    lamp AT %QX0.0 : BOOL;      (* an output the program switches on and the test forces FALSE *)
+    seen : BOOL;                (* start as the program read it *)
+    lampInBody : BOOL;          (* lamp as the body left it *)
+END_VAR
+seen := start;
+lamp := TRUE;
+lampInBody := lamp;
+END_PROGRAM
+"""
+
+
+def test_forcing_hooks_act_after_the_latch_and_before_the_publication():
+    # the test driver forces through the core's hooks (after_inputs, before_outputs), as the HMI will
+    run = run_st(FORCE, scans=3, forced={"%IX0.0": 1, "%QX0.0": 0})
+    assert run.series("Main.seen") == [True, True, True], "a forced input is what the program reads"
+    assert [i["%IX0.0"] for i in run.image] == [False, False, False], "the world's input is left as it is"
+    assert run.series("Main.lampInBody") == [True, True, True], "the program still writes its output"
+    assert [i["%QX0.0"] for i in run.image] == [False, False, False], "the forced value reaches the world"
+    assert run.done == [1, 2, 3], "scan_done closes every scan, once"
+
+
+def test_without_forcing_the_hooks_change_nothing():
+    run = run_st(FORCE, scans=2)
+    assert run.series("Main.seen") == [False, False]
+    assert [i["%QX0.0"] for i in run.image] == [True, True]
+    assert run.done == [1, 2]
 
 
 # --------------------------------------------------------------- one core, every host
