@@ -14,6 +14,11 @@ suite only recompiles what changed.
     run.value("Main.n")            # after the last scan
     run.value("Main.n", scan=3)    # after scan 3 (1-based)
     run.series("Main.t1.Q")        # one value per scan
+
+Every scan goes through the runtime's scan core (input latch, forced values,
+tasks due, output publication) with direct I/O: `before_latch`/`mid_scan`
+write image slots of located variables, and `run.image[n]`/`run.mid_image[n]`
+show the slots at the end of scan n+1 and between its tasks and publication.
 """
 from __future__ import annotations
 
@@ -30,7 +35,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 from plc.driver import INCLUDE, compile_sources  # noqa: E402
+from plc.resources import RUNTIME_SRC  # noqa: E402
 DRIVER_C = HERE / "scan_driver.c"
+SCAN_CORE_C = RUNTIME_SRC / "scan_core.c"      # the runtime's scan core: the driver runs every scan through it
 SAN = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
 CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", *SAN]
 RUN_ENV = {"ASAN_OPTIONS": "detect_leaks=0:abort_on_error=0:exitcode=86",
@@ -94,22 +101,34 @@ def _gcc(args: list[str]) -> None:
 
 
 def _headers() -> bytes:
-    return b"".join(p.read_bytes() for p in sorted(INCLUDE.glob("*.h")))
+    return b"".join(p.read_bytes() for p in [*sorted(INCLUDE.glob("*.h")), RUNTIME_SRC / "scan_core.h"])
+
+
+def _driver_sources() -> bytes:
+    return DRIVER_C.read_bytes() + b"\0" + SCAN_CORE_C.read_bytes()
 
 
 def driver_object() -> Path:
-    key = _hash(DRIVER_C.read_bytes(), _headers(), *CFLAGS)
+    """The scan driver and the scan core, compiled and linked into one relocatable object; cached."""
+    key = _hash(_driver_sources(), _headers(), *CFLAGS)
     obj = cache_dir() / f"driver-{key}.o"
     if not obj.exists():
         tmp = obj.with_suffix(f".{os.getpid()}.tmp.o")
-        _gcc([*CFLAGS, f"-I{INCLUDE}", "-c", str(DRIVER_C), "-o", str(tmp)])
+        parts = [obj.with_suffix(f".{os.getpid()}.{src.stem}.o") for src in (DRIVER_C, SCAN_CORE_C)]
+        try:
+            for src, part in zip((DRIVER_C, SCAN_CORE_C), parts):
+                _gcc([*CFLAGS, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}", "-c", str(src), "-o", str(part)])
+            _gcc(["-r", "-nostdlib", *map(str, parts), "-o", str(tmp)])
+        finally:
+            for part in parts:
+                part.unlink(missing_ok=True)
         os.replace(tmp, obj)
     return obj
 
 
 def build_c(c_text: str) -> Path:
     """Compile generated C with the sanitizers and link it with the scan driver; cached."""
-    key = _hash(c_text, DRIVER_C.read_bytes(), _headers(), *CFLAGS)
+    key = _hash(c_text, _driver_sources(), _headers(), *CFLAGS)
     exe = cache_dir() / f"prog-{key}"
     if exe.exists():
         return exe
@@ -184,6 +203,9 @@ class ScanRun:
     c_text: str = ""
     var_table: dict[str, VarInfo] = field(default_factory=dict)
     located: dict[str, Located] = field(default_factory=dict)     # by variable path
+    image: list[dict[str, object]] = field(default_factory=list)       # per scan: address -> image slot at scan end
+    mid_image: list[dict[str, object]] = field(default_factory=list)   # per scan: the slot after the tasks ran
+    done: list[int] = field(default_factory=list)        # scan numbers the core's scan_done hook reported
 
     def path(self, name: str) -> str:
         """Full upper-case path of `Program.var...` (or of a full CONFIG0... path)."""
@@ -223,11 +245,26 @@ class ScanRun:
         return next((f for f in self.faults if f is not None), None)
 
 
-def run_c(c_text: str, scans: int, paths: list[str] | None = None, last_only: bool = False) -> ScanRun:
+World = dict[int, dict[str, int]]    # scan (1-based) -> {located address: value}
+
+
+def _world_args(flag: str, writes: World | None) -> list[str]:
+    return [a for scan, slots in sorted((writes or {}).items()) for addr, v in slots.items()
+            for a in (flag, f"{scan}:{addr}={int(v)}")]
+
+
+def run_c(c_text: str, scans: int, paths: list[str] | None = None, last_only: bool = False,
+          before_latch: World | None = None, mid_scan: World | None = None,
+          forced: dict[str, int] | None = None) -> ScanRun:
+    """Run the program `scans` scans through the scan core.  The world writes image slots of located variables:
+    `before_latch` just before the input latch of a scan, `mid_scan` after the latch, before the tasks.
+    `forced` forces located variables (address -> value) through the core's forcing hooks in every scan."""
     exe = build_c(c_text)
     args = [str(exe), str(scans)]
     if last_only:
         args.append("-l")
+    args += _world_args("-w", before_latch) + _world_args("-m", mid_scan)
+    args += [a for addr, v in (forced or {}).items() for a in ("-f", f"{addr}={int(v)}")]
     args += paths or []
     try:
         proc = subprocess.run(args, capture_output=True, text=True, timeout=RUN_TIMEOUT,
@@ -255,6 +292,17 @@ def run_c(c_text: str, scans: int, paths: list[str] | None = None, last_only: bo
             run.rcs.append(int(rc))
             run.scans.append({})
             run.faults.append(None)
+            run.image.append({})
+        elif kind == "done":
+            run.done.append(int(rest))
+        elif kind in ("i", "m"):
+            addr, code, val = rest.split(" ", 2)
+            if kind == "m":       # printed during the scan, before its "scan" line
+                while len(run.mid_image) <= len(run.scans):
+                    run.mid_image.append({})
+                run.mid_image[len(run.scans)][addr] = _parse_value(int(code), val)
+            else:
+                run.image[-1][addr] = _parse_value(int(code), val)
         elif kind == "fault":
             k, pou, ln, col = rest.split()
             run.faults[-1] = Fault(int(k), pou, int(ln), int(col))
@@ -268,7 +316,8 @@ def run_c(c_text: str, scans: int, paths: list[str] | None = None, last_only: bo
 
 
 def run_st(text: str, scans: int = 1, paths: list[str] | None = None, last_only: bool = False,
-           interval: str = "T#4ms") -> ScanRun:
+           interval: str = "T#4ms", before_latch: World | None = None, mid_scan: World | None = None,
+           forced: dict[str, int] | None = None) -> ScanRun:
     """Compile `text` (adding a configuration if it has none), run `scans` scans, return the values."""
     full, inst = with_config(text, interval)
     res = compile_st(full)
@@ -276,6 +325,6 @@ def run_st(text: str, scans: int = 1, paths: list[str] | None = None, last_only:
         raise HarnessError("snippet does not compile:\n" + render(res))
     tmp = ScanRun(0, [], instances=inst)
     wanted = [tmp.path(p) for p in paths] if paths else None
-    run = run_c(res.c_text, scans, wanted, last_only)
+    run = run_c(res.c_text, scans, wanted, last_only, before_latch, mid_scan, forced)
     run.instances = inst
     return run

@@ -163,8 +163,7 @@ def test_portability_warnings_are_written_only_by_the_portability_module():
                      if ".portable(" in p.read_text() and p.name not in ("portability.py", "diagnostics.py"))
     assert writers == []
     used = {m.group(1) for p in pkg.rglob("*.py")
-            for m in re.finditer(r'(?:self\.port|portability\.report)\([^,]+, "([a-z-]+)"',
-                                 p.read_text())}
+            for m in re.finditer(r'(?:self\.port\([^,]+, |portability\.fact\()"([a-z-]+)"', p.read_text())}
     assert used == set(portability.RULES)
 
 
@@ -205,3 +204,37 @@ def test_an_internal_error_reaches_the_command_line_as_exit_3_with_its_position_
     err = capsys.readouterr().err
     assert err.startswith("t.st:4:2: internal compiler error: the C generator does not handle the statement Goto")
     assert "bug of the compiler" in err and "Traceback" not in err
+
+
+def test_the_stages_record_facts_and_only_the_portability_pass_warns():
+    """Lexer, parser and semantic passes record portability facts; the warnings appear in the portability pass."""
+    from plc import portability
+    text = ("// a comment MATIEC rejects\nVAR_GLOBAL g : INT; END_VAR\n"
+            "PROGRAM Main\nVAR t : TIME; END_VAR\nt := T#5us;\nEND_PROGRAM\n")
+    diags = Diagnostics()
+    tree = parse(text, "t.st", diags)
+    assert [(f.rule, f.pos.line, f.pos.col) for f in tree.facts] == [("comment-line", 1, 1), ("global", 2, 1)]
+    prog = analyze([tree], diags)
+    assert [(f.rule, f.pos.line, f.pos.col) for f in prog.facts] == [("time-unit", 5, 6)]
+    assert diags.warnings == [], "no stage before the portability pass writes a warning"
+    portability.lint([tree], prog, diags, set())
+    got = [(d.code, d.pos.line, d.pos.col) for d in diags.warnings]
+    assert got[:3] == [("portability.comment", 1, 1), ("portability.global", 2, 1), ("portability.time-unit", 5, 6)]
+
+
+def test_each_semantic_pass_is_a_class_of_its_own_module_run_by_name():
+    """No mixin analyzer: driver.SEMANTIC_PASSES names the passes, each a Pass subclass in its own module,
+    sharing one SemanticState."""
+    from plc import driver, sema
+    from plc.passes.context import Pass, SemanticState
+    assert list(driver.SEMANTIC_PASSES) == list(sema.PASSES)
+    classes = [*sema.PASSES.values(), *sema.HELPERS.values()]
+    assert all(cls.__bases__ == (Pass,) for cls in classes)
+    assert len({cls.__module__ for cls in classes}) == len(classes)
+    diags = Diagnostics()
+    files = [parse("PROGRAM Main\nVAR n : INT; END_VAR\nn := n + 1;\nEND_PROGRAM\n", "t.st", diags)]
+    prog = sema.analyze(files, diags, driver.SEMANTIC_PASSES)
+    assert not diags.items and prog.pous["MAIN"].scope.vars["N"].type.name == "INT"
+    # the passes' shared state is one object; a pass's own working state stays with the pass
+    st = SemanticState(files, Diagnostics())
+    assert not hasattr(st, "resolving") and not hasattr(st, "loop")

@@ -395,6 +395,8 @@ class Configuration(Node):
 class SourceFile(Node):
     path: str
     items: list[Node]        # TypeBlock | Pou | Configuration | VarBlock (global)
+    # portability.Fact records of the lexer and the parser (constructs MATIEC rejects), for the portability pass
+    facts: list = field(default_factory=list)
 
 
 # -------------------------------------------------------------------- walking --

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import ast as A
-from . import service
+from . import portability, service
 from .diagnostics import Diagnostics, SourceSet
 from .driver import collect_files, compile_sources, display_name, load_user_file
 from .parser import parse
@@ -61,6 +61,7 @@ def _end_line(lines: list[str], start: int, keyword: str) -> int:
 
 def split_items(name: str, text: str, diags: Diagnostics) -> list[Item]:
     tree = parse(text, name, diags)
+    portability.warn(tree.facts, diags)      # what the lexer and the parser found, as a build would report it
     lines = text.splitlines()
     items: list[Item] = []
     prev_end = 0

@@ -151,9 +151,10 @@ class Diagnostics:
         return any(d.severity == "error" for d in self.items)
 
     def sorted(self) -> list[Diagnostic]:
+        """By position; at one position errors first (whichever stage found them), duplicates once."""
         seen = set()
         out = []
-        for d in sorted(self.items, key=lambda d: (d.pos.file, d.pos.line, d.pos.col)):
+        for d in sorted(self.items, key=lambda d: (d.pos.file, d.pos.line, d.pos.col, d.severity != "error")):
             key = (d.severity, d.pos, d.message)
             if key not in seen:
                 seen.add(key)

@@ -144,25 +144,15 @@ def deep_recursion(fn):
     return wrapper
 
 
-# The semantic passes in the order they run: (name, Analyzer method, module of plc/src/plc/passes).
-SEMANTIC_PASSES = (
-    ("declarations", "declare", "declarations"),
-    ("types", "resolve_types", "typedecls"),
-    ("scopes", "build_scopes", "scopes"),
-    ("configuration", "configurations", "configuration"),
-    ("externals", "bind_externals", "configuration"),
-    ("bodies", "check_bodies", "statements"),
-)
+# The semantic passes in the order they run, by name (sema.PASSES: one class each in plc/src/plc/passes).
+SEMANTIC_PASSES = ("declarations", "types", "scopes", "configuration", "externals", "bodies")
 
 
 def analyze(files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[str] | None = None,
             test_build: bool = False):
     """The typed program (sema.Program): every semantic pass run over `files`, in SEMANTIC_PASSES order."""
-    from .sema import Analyzer
-    analyzer = Analyzer(files, diags, builtin_files, test_build)
-    for _name, method, _module in SEMANTIC_PASSES:
-        getattr(analyzer, method)()
-    return analyzer.prog
+    from . import sema
+    return sema.analyze(files, diags, SEMANTIC_PASSES, builtin_files, test_build)
 
 
 @deep_recursion

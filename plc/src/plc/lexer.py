@@ -70,10 +70,11 @@ def is_alnum(c: str) -> bool:
 
 
 class Lexer:
-    def __init__(self, text: str, filename: str, diags: Diagnostics):
+    def __init__(self, text: str, filename: str, diags: Diagnostics, facts: list | None = None):
         self.src = text
         self.file = filename
         self.diags = diags
+        self.facts: list[portability.Fact] = facts if facts is not None else []   # for the portability pass
         self.i = 0
         self.line = 1
         self.col = 1
@@ -107,7 +108,7 @@ class Lexer:
             elif c == "(" and self.peek(1) == "*":
                 self.block_comment()
             elif c == "/" and self.peek(1) == "/":
-                portability.report(self.diags, "comment-line", self.pos())
+                self.facts.append(portability.fact("comment-line", self.pos()))
                 while self.i < len(self.src) and self.peek() != "\n":
                     self.advance()
             elif c == "/" and self.peek(1) == "*":
@@ -134,7 +135,7 @@ class Lexer:
         self.skip_comment("(*", "*)")
 
     def c_comment(self) -> None:
-        portability.report(self.diags, "comment-block", self.pos())
+        self.facts.append(portability.fact("comment-block", self.pos()))
         self.skip_comment("/*", "*/")
 
     def skip_comment(self, opener: str, closer: str) -> None:
@@ -150,7 +151,7 @@ class Lexer:
 
     def pragma(self) -> None:
         start = self.pos()
-        portability.report(self.diags, "pragma", start)
+        self.facts.append(portability.fact("pragma", start))
         while self.i < len(self.src) and self.peek() != "}":
             self.advance()
         if self.i >= len(self.src):
@@ -267,7 +268,7 @@ class Lexer:
     def string(self, quote: str) -> None:
         start, pos = self.i, self.pos()
         if quote == '"':
-            portability.report(self.diags, "wstring", pos)
+            self.facts.append(portability.fact("wstring", pos))
         self.advance()
         out = []
         while True:
@@ -336,5 +337,6 @@ class Lexer:
         self.advance()
 
 
-def tokenize(text: str, filename: str, diags: Diagnostics) -> list[Token]:
-    return Lexer(text, filename, diags).run()
+def tokenize(text: str, filename: str, diags: Diagnostics, facts: list | None = None) -> list[Token]:
+    """The tokens of `text`; problems go to diags, portability facts to `facts` (a list the caller keeps)."""
+    return Lexer(text, filename, diags, facts).run()

@@ -42,11 +42,12 @@ class ParseError(Exception):
 
 
 class Parser:
-    def __init__(self, tokens: list[Token], filename: str, diags: Diagnostics):
+    def __init__(self, tokens: list[Token], filename: str, diags: Diagnostics, facts: list | None = None):
         self.toks = tokens
         self.k = 0
         self.file = filename
         self.diags = diags
+        self.facts: list[portability.Fact] = facts if facts is not None else []   # for the portability pass
         self.depth = 0
 
     # -- token helpers ------------------------------------------------------------
@@ -137,7 +138,7 @@ class Parser:
                 self.recover_top()
             if self.k == before:
                 self.next()
-        return A.SourceFile(start, self.file, items)
+        return A.SourceFile(start, self.file, items, self.facts)
 
     def recover_top(self) -> None:
         while self.tok.kind != "EOF":
@@ -159,7 +160,7 @@ class Parser:
         if t.is_kw("CONFIGURATION"):
             return self.configuration()
         if t.is_kw("VAR_GLOBAL"):
-            portability.report(self.diags, "global", t.pos)
+            self.facts.append(portability.fact("global", t.pos))
             return self.var_block()
         if t.is_kw("INTERFACE", "METHOD"):
             self.diags.error(t.pos, f"{t.value} is not supported (IEC 61131-3 edition 3 / not in MATIEC)",
@@ -943,5 +944,7 @@ class Parser:
 
 
 def parse(text: str, filename: str, diags: Diagnostics) -> A.SourceFile:
-    tokens = tokenize(text, filename, diags)
-    return Parser(tokens, filename, diags).parse_file()
+    """The file's AST; the portability facts of the lexer and the parser ride on its `facts`."""
+    facts: list[portability.Fact] = []
+    tokens = tokenize(text, filename, diags, facts)
+    return Parser(tokens, filename, diags, facts).parse_file()

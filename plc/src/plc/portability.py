@@ -2,11 +2,13 @@
 
 RULES holds every language-level portability warning (its code, message and
 hint).  The lexer, parser and semantic passes meet these constructs while they
-check them, so they record the fact there, `report(diags, rule, pos, **details)`,
-and this module turns it into the warning (the semantic passes leave out the
-built-in files; `--no-portability` silences them all).
+check them, so they record a `Fact` there (`fact(rule, pos, **details)`: the
+lexer's and the parser's ride on the file's `SourceFile.facts`, the semantic
+passes' on `Program.facts`, built-in files left out), and `lint`, the
+portability pass, turns every fact into the rule's warning (`--no-portability`
+silences them all).  Only this module writes portability warnings.
 
-`lint`, the portability pass run after the semantic passes, looks at names:
+`lint`, run after the semantic passes, also looks at names:
 POU and TYPE names that collide with OpenPLC's library, identifiers MATIEC's
 lexer or code generator cannot take, and the CONFIGURATION/RESOURCE names
 OpenPLC needs; and at statement lists MATIEC rejects.
@@ -88,11 +90,28 @@ def rule_code(rule: str) -> str:
     return "portability." + ("comment" if rule.startswith("comment-") else rule)
 
 
-def report(diags: Diagnostics, rule: str, pos: Pos, **details: str) -> None:
-    """The portability warning of `rule` at `pos` (a stage found the construct there)."""
-    r = RULES[rule]
-    diags.portable(pos, r.message.format(**details), r.hint.format(**details) if r.hint else None,
-                   code=rule_code(rule))
+@dataclass(frozen=True)
+class Fact:
+    """A construct OpenPLC's MATIEC rejects, recorded by the stage that met it: the rule of RULES, where, and
+    the details the rule's message names.  The portability pass makes it the rule's warning."""
+    rule: str
+    pos: Pos
+    details: tuple[tuple[str, str], ...] = ()
+
+
+def fact(rule: str, pos: Pos, **details: str) -> Fact:
+    """The fact that the construct of `rule` is at `pos` (an unknown rule is a compiler bug: KeyError)."""
+    RULES[rule]
+    return Fact(rule, pos, tuple(details.items()))
+
+
+def warn(facts: list[Fact], diags: Diagnostics) -> None:
+    """Each recorded fact as its rule's warning, in the order the stages found them."""
+    for f in facts:
+        r = RULES[f.rule]
+        details = dict(f.details)
+        diags.portable(f.pos, r.message.format(**details), r.hint.format(**details) if r.hint else None,
+                       code=rule_code(f.rule))
 
 
 # Identifiers MATIEC's parser refuses as variable names besides our keywords (measured with iec2c -p).
@@ -117,6 +136,11 @@ def library_identifiers() -> frozenset[str]:
 
 
 def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str], target: str | None = None) -> None:
+    """The portability pass: the facts the lexer, parser and semantic passes recorded become warnings (file by
+    file, then the passes'), then the names and statement lists of the user's files are checked."""
+    for f in files:
+        warn(f.facts, diags)
+    warn(prog.facts, diags)
     lib = library_identifiers()
     for f in files:
         if f.path in builtin:

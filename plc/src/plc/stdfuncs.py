@@ -102,9 +102,9 @@ class StdFunc:
                 if a.value is None:
                     an.err(a.pos, "EN := needs a value")
                     continue
-                an.expr(a.value, scope, T.BOOL)
+                an.expr_typing.expr(a.value, scope, T.BOOL)
             if a.name == "ENO" and a.output and a.value is not None:
-                tt = an.lvalue(a.value, "write ENO into")
+                tt = an.stmt_pass.lvalue(a.value, "write ENO into")
                 an.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
         args = self.bind(an, c)
         if args is None:
@@ -121,7 +121,7 @@ class StdFunc:
         elif n != fixed:
             an.err(c.pos, f"{self.name} takes {fixed} input{'s' if fixed != 1 else ''} ({', '.join(self.params)}), got {n}")
             for v in args:
-                an.expr(v, scope, None)
+                an.expr_typing.expr(v, scope, None)
             return T.ERROR
         c.std_args = args
         return getattr(self, "k_" + self.kind)(an, c, args, scope, expected)
@@ -129,7 +129,7 @@ class StdFunc:
     # -- helpers -----------------------------------------------------------------------
     def same(self, an, c, args, scope, expected, generic: str) -> T.Type:
         """All arguments share one type (literals adapt); return it."""
-        tys = [an.expr(v, scope, None) for v in args]
+        tys = [an.expr_typing.expr(v, scope, None) for v in args]
         concrete = [T.resolve_base(t) for t in tys if not isinstance(T.resolve_base(t), T.LiteralType)]
         if any(isinstance(t, T.ErrorType) for t in concrete):
             return T.ERROR
@@ -142,13 +142,13 @@ class StdFunc:
             target = T.LREAL if any(getattr(t, "cat", "") == "real" for t in lits) else T.DINT
         for v, t in zip(args, tys):
             if isinstance(T.resolve_base(t), T.LiteralType):
-                an.fix_literal(v, target)
+                an.expr_typing.fix_literal(v, target)
                 if isinstance(v.ty, T.LiteralType):
                     an.err(v.pos, f"{self.name}: this literal does not fit {target}")
                     return T.ERROR
             elif not T.same_type(t, target):
                 an.err(v.pos, f"{self.name}: all inputs must have the same type ({target} and {t})",
-                       an.conv_hint(t, target))
+                       an.expr_typing.conv_hint(t, target))
                 return T.ERROR
         if not T.is_generic_ok(generic, target):
             an.err(c.pos, f"{self.name} needs {generic} inputs, not {target}")
@@ -156,7 +156,7 @@ class StdFunc:
         return target
 
     def one(self, an, v, scope, want: T.Type) -> None:
-        t = an.expr(v, scope, want)
+        t = an.expr_typing.expr(v, scope, want)
         an.assign_compat(v, t, want, v.pos, f"{self.name} input")
 
     # -- kinds -------------------------------------------------------------------------
@@ -167,21 +167,21 @@ class StdFunc:
         return self.same(an, c, args, scope, expected, "ANY_REAL")
 
     def k_arith(self, an, c, args, scope, expected):
-        tys = [T.resolve_base(an.expr(v, scope, None)) for v in args]
+        tys = [T.resolve_base(an.expr_typing.expr(v, scope, None)) for v in args]
         if any(isinstance(t, T.Elementary) and t.cat == "time" for t in tys):
             c.time_arith = True
             for v, t in zip(args[1:], tys[1:]):
                 if isinstance(t, T.LiteralType):
-                    an.fix_literal(v, T.DINT if t.cat == "int" else T.LREAL)
+                    an.expr_typing.fix_literal(v, T.DINT if t.cat == "int" else T.LREAL)
             return T.TIME
         return self.same(an, c, args, scope, expected, "ANY_NUM")
 
     def k_expt(self, an, c, args, scope, expected):
-        b = an.expr(args[0], scope, expected if T.is_elem(expected or T.ERROR, "real") else T.LREAL)
-        e = an.expr(args[1], scope, None)
+        b = an.expr_typing.expr(args[0], scope, expected if T.is_elem(expected or T.ERROR, "real") else T.LREAL)
+        e = an.expr_typing.expr(args[1], scope, None)
         bb = T.resolve_base(b)
         if isinstance(T.resolve_base(e), T.LiteralType):
-            an.fix_literal(args[1], T.LREAL if T.resolve_base(e).cat == "real" else T.DINT)
+            an.expr_typing.fix_literal(args[1], T.LREAL if T.resolve_base(e).cat == "real" else T.DINT)
         if not T.is_elem(bb, "real"):
             if not isinstance(bb, T.ErrorType):
                 an.err(args[0].pos, f"EXPT needs a REAL or LREAL base, not {b}")
@@ -191,7 +191,7 @@ class StdFunc:
         return bb
 
     def k_move(self, an, c, args, scope, expected):
-        t = an.expr(args[0], scope, expected)
+        t = an.expr_typing.expr(args[0], scope, expected)
         return t
 
     def k_minmax(self, an, c, args, scope, expected):
@@ -209,15 +209,15 @@ class StdFunc:
         return self.same(an, c, args[1:], scope, expected, "ANY")
 
     def k_mux(self, an, c, args, scope, expected):
-        kt = an.expr(args[0], scope, T.DINT)
+        kt = an.expr_typing.expr(args[0], scope, T.DINT)
         if isinstance(T.resolve_base(kt), T.LiteralType):
-            an.fix_literal(args[0], T.DINT)
+            an.expr_typing.fix_literal(args[0], T.DINT)
         elif not T.is_elem(kt, "int", "uint"):
             an.err(args[0].pos, f"MUX selector K must be an integer, not {kt}")
         return self.same(an, c, args[1:], scope, expected, "ANY")
 
     def k_shift(self, an, c, args, scope, expected):
-        t = an.expr(args[0], scope, expected)
+        t = an.expr_typing.expr(args[0], scope, expected)
         b = T.resolve_base(t)
         if isinstance(b, T.LiteralType):
             an.err(args[0].pos, f"{self.name} needs a typed bit string; write WORD#16#...")
@@ -226,9 +226,9 @@ class StdFunc:
             if not isinstance(b, T.ErrorType):
                 an.err(args[0].pos, f"{self.name} needs a bit string (BYTE, WORD, DWORD, LWORD), not {t}")
             return T.ERROR
-        nt = an.expr(args[1], scope, T.DINT)
+        nt = an.expr_typing.expr(args[1], scope, T.DINT)
         if isinstance(T.resolve_base(nt), T.LiteralType):
-            an.fix_literal(args[1], T.DINT)
+            an.expr_typing.fix_literal(args[1], T.DINT)
         elif not T.is_elem(nt, "int", "uint"):
             an.err(args[1].pos, f"{self.name} count N must be an integer, not {nt}")
         return b
@@ -254,9 +254,9 @@ class StdFunc:
         return T.STRING
 
     def int_arg(self, an, v, scope):
-        t = an.expr(v, scope, T.INT)
+        t = an.expr_typing.expr(v, scope, T.INT)
         if isinstance(T.resolve_base(t), T.LiteralType):
-            an.fix_literal(v, T.INT)
+            an.expr_typing.fix_literal(v, T.INT)
         elif not T.is_elem(t, "int", "uint"):
             an.err(v.pos, f"{self.name}: expected an integer, not {t}")
 
@@ -296,9 +296,9 @@ class StdFunc:
         return T.INT
 
     def k_trunc(self, an, c, args, scope, expected):
-        t = an.expr(args[0], scope, T.LREAL)
+        t = an.expr_typing.expr(args[0], scope, T.LREAL)
         if isinstance(T.resolve_base(t), T.LiteralType):
-            an.fix_literal(args[0], T.LREAL)
+            an.expr_typing.fix_literal(args[0], T.LREAL)
         elif not T.is_elem(t, "real"):
             an.err(args[0].pos, f"TRUNC needs a REAL or LREAL, not {t}")
         return T.DINT

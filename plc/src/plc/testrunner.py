@@ -2,8 +2,9 @@
 
 A test is a FUNCTION_BLOCK whose name starts with TEST_ and that has a
 VAR_IN_OUT of type ST_TestContext.  `plc test` compiles st_src/ and the test
-files once into one native binary (the generated C plus stdlib/test_main.c),
-runs each test on a fresh instance with a simulated clock, and reports.
+files once into one native binary (the generated C plus stdlib/test_main.c and
+the runtime's scan core), runs each test on a fresh instance with a simulated
+clock, and reports.
 """
 from __future__ import annotations
 
@@ -17,6 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .driver import STDLIB, UserError, cc, compile_sources, content_hash, print_diagnostics, INCLUDE
+from .resources import RUNTIME_SRC
+
+# The scan core the runtime uses: `plc test` runs every scan through it.
+SCAN_CORE = (RUNTIME_SRC / "scan_core.c", RUNTIME_SRC / "scan_core.h")
 
 DEFAULT_TIMEOUT_S = 20
 
@@ -63,15 +68,15 @@ def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, 
         raise TestBuildError(len(res.diags.errors))
     runner_c = STDLIB / "test_main.c"
     key = content_hash(res.c_text, runner_c.read_bytes(), (INCLUDE / "plc_rt.h").read_bytes(),
-                       (INCLUDE / "plc_abi.h").read_bytes(), optimize)
+                       (INCLUDE / "plc_abi.h").read_bytes(), *(p.read_bytes() for p in SCAN_CORE), optimize)
     out = build_dir / key
     exe = out / "tests"
     if not exe.exists():
         out.mkdir(parents=True, exist_ok=True)
         c_file = out / "tests.c"
         c_file.write_text(res.c_text)
-        cmd = [cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", str(c_file),
-               str(runner_c), "-o", str(exe) + ".tmp", "-lm"]
+        cmd = [cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}",
+               str(c_file), str(runner_c), str(SCAN_CORE[0]), "-o", str(exe) + ".tmp", "-lm"]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise UserError("C compiler failed on the test build (a bug in plc):\n  " +

@@ -8,10 +8,13 @@ from .. import types as T
 from ..diagnostics import Pos
 from ..stdfuncs import STD_FUNCS, conversion
 from ..symbols import FuncSym, Scope
-from .context import PassBase
+from .context import Pass
 
 
-class CallTyping(PassBase):
+class CallTyping(Pass):
+    """Asked by expression typing and the bodies pass; no pass of its own."""
+    pass_name = "calls"
+
     # ------------------------------------------------------------------ calls --
     def call_expr(self, c: A.Call, scope, expected) -> T.Type:
         sym = scope.lookup(c.func) if scope else None
@@ -24,7 +27,7 @@ class CallTyping(PassBase):
             return T.ERROR
         if not c.args:
             self.port(c.pos, "empty-call")
-        fs = self.prog.funcs.get(c.func)
+        fs = self.st.prog.funcs.get(c.func)
         if fs is not None:
             c.target = fs
             self.user_call(c, fs, scope)
@@ -37,16 +40,16 @@ class CallTyping(PassBase):
         if std is not None:
             c.target = std
             return std.check(self, c, scope, expected)
-        if c.func in self.prog.pous:
-            self.err(c.pos, f"'{c.text}' is a {self.prog.pous[c.func].kind}: declare an instance and call that")
+        if c.func in self.st.prog.pous:
+            self.err(c.pos, f"'{c.text}' is a {self.st.prog.pous[c.func].kind}: declare an instance and call that")
             return T.ERROR
         self.err(c.pos, f"unknown function '{c.text}'",
-                 self.suggest(c.func, list(self.prog.funcs) + list(STD_FUNCS)))
+                 self.type_pass.suggest(c.func, list(self.st.prog.funcs) + list(STD_FUNCS)))
         return T.ERROR
 
     def mark_assert_site(self, c: A.Call, fs: FuncSym) -> None:
-        if self.test_build and fs.builtin and (fs.name.startswith("ASSERT") or fs.name == "FAIL"):
-            c.site = self.prog.site(c.pos, self.current_pou.text if self.current_pou else "")
+        if self.st.test_build and fs.builtin and (fs.name.startswith("ASSERT") or fs.name == "FAIL"):
+            c.site = self.st.prog.site(c.pos, self.st.current_pou.text if self.st.current_pou else "")
 
     def user_call(self, c: A.Call, fs: FuncSym, scope) -> None:
         self.bind_args(c, fs.scope, fs.text, fs.text, is_fb=False)
@@ -74,7 +77,7 @@ class CallTyping(PassBase):
         for a in c.args:
             if a.name is None:          # a positional argument past the inputs: reported above
                 if not is_fb and a.value is not None:
-                    self.expr(a.value, self.scope, None)
+                    self.expr_typing.expr(a.value, self.st.scope, None)
                 continue
             if a.name in seen:
                 self.err(a.pos, f"parameter '{a.text or a.name}' given twice")
@@ -86,14 +89,14 @@ class CallTyping(PassBase):
             p = callee.lookup(a.name)
             if p is None or p.section not in ("VAR_INPUT", "VAR_OUTPUT", "VAR_IN_OUT"):
                 self.err(a.pos, f"{callee_name} has no parameter '{a.text or a.name}'",
-                         self.suggest(a.name, [q.name for q in params]))
+                         self.type_pass.suggest(a.name, [q.name for q in params]))
                 continue
             a.param = p
             if p.section == "VAR_OUTPUT":
                 if not a.output:
                     self.err(a.pos, f"'{p.text}' is an output: write `{p.text} => variable`")
                 elif a.value is not None:
-                    tt = self.lvalue(a.value, "write an output into")
+                    tt = self.stmt_pass.lvalue(a.value, "write an output into")
                     self.assign_compat(a.value, p.type, tt, a.pos, f"output {p.text}")
                 continue
             if a.output:
@@ -104,15 +107,15 @@ class CallTyping(PassBase):
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' must be connected with :=")
                 continue
             if p.section == "VAR_IN_OUT":
-                at = self.lvalue(a.value, "pass as VAR_IN_OUT")
-                if not self.is_lvalue(a.value):
+                at = self.stmt_pass.lvalue(a.value, "pass as VAR_IN_OUT")
+                if not self.stmt_pass.is_lvalue(a.value):
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' needs a variable, not an expression")
                 elif not T.same_type(at, p.type) and not isinstance(at, T.ErrorType):
                     self.err(a.pos, f"VAR_IN_OUT '{p.text}' is {p.type}, the argument is {at}")
                 elif not is_fb and isinstance(a.value, A.Index):
                     self.port(a.pos, "inout-element")
             else:
-                at = self.expr(a.value, self.scope, p.type)
+                at = self.expr_typing.expr(a.value, self.st.scope, p.type)
                 self.assign_compat(a.value, at, p.type, a.pos, f"input {p.text}")
         for p in params:
             if p.section == "VAR_IN_OUT" and p.name not in seen:
@@ -124,11 +127,11 @@ class CallTyping(PassBase):
             if a.value is None:
                 self.err(a.pos, "EN := needs a value")
                 return
-            self.expr(a.value, self.scope, T.BOOL)
+            self.expr_typing.expr(a.value, self.st.scope, T.BOOL)
             self.assign_compat(a.value, a.value.ty, T.BOOL, a.pos, "EN")
         elif a.name == "ENO" and a.output:
             if a.value is not None:
-                tt = self.lvalue(a.value, "write ENO into")
+                tt = self.stmt_pass.lvalue(a.value, "write ENO into")
                 self.assign_compat(a.value, T.BOOL, tt, a.pos, "ENO")
         else:
             self.err(a.pos, f"{a.name} must be passed with {'=>' if a.name == 'ENO' else ':='}")
@@ -145,20 +148,20 @@ class CallTyping(PassBase):
             self.err(c.pos, f"{c.text} takes exactly one input")
             for a in c.args:
                 if a.value is not None and not a.output:
-                    self.expr(a.value, scope, None)
+                    self.expr_typing.expr(a.value, scope, None)
             return dst
         a = c.args[0]
         if a.name not in (None, "IN"):
             self.err(a.pos, f"{c.text} has no parameter '{a.text}'", "its input is IN")
         if generic:
             self.port(c.pos, "generic-conversion", call=c.text, type=dst.name)
-        at = self.expr(a.value, scope, src)
+        at = self.expr_typing.expr(a.value, scope, src)
         ab = T.resolve_base(at)
         if isinstance(ab, T.ErrorType):
             return dst
         if generic:
             if isinstance(ab, T.LiteralType):
-                self.fix_literal(a.value, T.LINT if ab.cat == "int" else T.LREAL)
+                self.expr_typing.fix_literal(a.value, T.LINT if ab.cat == "int" else T.LREAL)
                 ab = T.resolve_base(a.value.ty)
             c.target = ("CONV", ab, dst)
         elif not T.same_type(ab, src) and not isinstance(ab, T.LiteralType):
@@ -179,7 +182,7 @@ class CallTyping(PassBase):
             return True
         if isinstance(sb, T.LiteralType):
             if e is not None:
-                self.fix_literal(e, dst)
+                self.expr_typing.fix_literal(e, dst)
                 if isinstance(e.ty, T.LiteralType):
                     if sb.cat == "real" and T.is_elem(db, "int", "uint", "bit"):
                         self.err(pos, f"{what}: a REAL literal cannot go into {dst}")
@@ -210,6 +213,6 @@ class CallTyping(PassBase):
 
     def check_subrange(self, e: A.Expr, dst: T.Type) -> None:
         if isinstance(dst, T.SubrangeType):
-            v = self.const_int(e)
+            v = self.const_eval.const_int(e)
             if v is not None and not (dst.lo <= v <= dst.hi):
                 self.err(e.pos, f"value {v} is outside the subrange {dst.lo}..{dst.hi} of {dst.name}")

@@ -1,5 +1,4 @@
-"""Pass 4, configuration: resources, tasks, program instances, configuration globals; then every
-VAR_EXTERNAL bound to its global.
+"""Pass 4, configuration: resources, tasks, program instances, configuration globals.
 """
 from __future__ import annotations
 
@@ -9,33 +8,35 @@ from functools import reduce
 from .. import ast as A
 from .. import types as T
 from ..symbols import Scope, VarSym
-from .context import PassBase, TaskInfo, InstanceInfo, ConfigInfo
+from .context import Pass, TaskInfo, InstanceInfo, ConfigInfo
 
 
-class ConfigurationPass(PassBase):
-    def configurations(self) -> None:
-        for cfg in (i for f in self.files for i in f.items if isinstance(i, A.Configuration)):
+class ConfigurationPass(Pass):
+    pass_name = "configuration"
+
+    def run(self) -> None:
+        for cfg in (i for f in self.st.files for i in f.items if isinstance(i, A.Configuration)):
             self.configuration(cfg)
 
     def configuration(self, cfg: A.Configuration) -> None:
         info = ConfigInfo(cfg.name, cfg)
-        self.prog.configs.append(info)
+        self.st.prog.configs.append(info)
         gscope = Scope(cfg.name, "CONFIGURATION")
-        self.scope = gscope
+        self.st.scope = gscope
         for block in cfg.globals:
-            self.var_block(block, gscope, None)
+            self.scope_pass.var_block(block, gscope, None)
         tasks: dict[str, TaskInfo] = {}
         for res in cfg.resources:
             info.resources.append(res.name)
             for block in res.globals:
-                self.var_block(block, gscope, None)
+                self.scope_pass.var_block(block, gscope, None)
             for td in res.tasks:
                 if td.name in tasks:
                     self.err(td.pos, f"duplicate task '{td.text}'")
                     continue
                 single = None
                 if td.single is not None:
-                    st = self.expr(td.single, gscope, T.BOOL)
+                    st = self.expr_typing.expr(td.single, gscope, T.BOOL)
                     sym = td.single.sym
                     if not isinstance(td.single, A.Name) or not isinstance(sym, VarSym) or not T.is_elem(st, "bool"):
                         self.err(td.single.pos, "SINGLE needs a BOOL global variable",
@@ -44,8 +45,8 @@ class ConfigurationPass(PassBase):
                         single = sym
                 interval = 0
                 if td.interval is not None:
-                    self.expr(td.interval, gscope, T.TIME)
-                    v = self.const_value(td.interval)
+                    self.expr_typing.expr(td.interval, gscope, T.TIME)
+                    v = self.const_eval.const_value(td.interval)
                     if not isinstance(td.interval, A.TimeLit) or v is None or v <= 0:
                         self.err(td.interval.pos, "INTERVAL must be a positive TIME literal", "INTERVAL := T#10ms")
                     elif single is None:       # as MATIEC, SINGLE wins: the task runs on rising edges only
@@ -55,7 +56,7 @@ class ConfigurationPass(PassBase):
                              "TASK t(INTERVAL := T#10ms, PRIORITY := 0);")
                 prio = 0
                 if td.priority is not None:
-                    p = self.const_int(td.priority)
+                    p = self.const_eval.const_int(td.priority)
                     if p is None or p < 0:
                         self.err(td.priority.pos, "PRIORITY must be a non-negative integer")
                     else:
@@ -64,10 +65,10 @@ class ConfigurationPass(PassBase):
                 tasks[td.name] = ti
                 info.tasks.append(ti)
             for pi in res.programs:
-                pt = self.prog.pous.get(pi.type_name)
+                pt = self.st.prog.pous.get(pi.type_name)
                 if pt is None or pt.kind != "PROGRAM":
                     self.err(pi.pos, f"unknown PROGRAM '{pi.type_text}'",
-                             self.suggest(pi.type_name, [n for n, p in self.prog.pous.items() if p.kind == "PROGRAM"]))
+                             self.type_pass.suggest(pi.type_name, [n for n, p in self.st.prog.pous.items() if p.kind == "PROGRAM"]))
                     continue
                 task = None
                 if pi.task is None:
@@ -94,23 +95,5 @@ class ConfigurationPass(PassBase):
                 t.every = t.interval_ns // info.base_tick_ns
         info.globals = gscope.vars
         for v in gscope.vars.values():
-            self.global_scope[v.name] = v
-        self.scope = None
-
-    def bind_externals(self) -> None:
-        for pou_name, pou in self.pou_decls.items():
-            scope = self.prog.funcs[pou_name].scope if pou.kind == "FUNCTION" else self.prog.pous[pou_name].scope
-            for v in scope.vars.values():
-                if v.section != "VAR_EXTERNAL":
-                    continue
-                g = self.global_scope.get(v.name)
-                if g is None:
-                    if self.prog.configs:
-                        self.err(v.pos, f"VAR_EXTERNAL '{v.text}' has no matching VAR_GLOBAL in the configuration")
-                    continue
-                if not T.same_type(g.type, v.type) and not isinstance(v.type, T.ErrorType):
-                    self.err(v.pos, f"VAR_EXTERNAL '{v.text}' is {v.type} but the VAR_GLOBAL is {g.type}",
-                             f"declared at {g.pos}")
-                if g.constant and not v.constant:
-                    self.err(v.pos, f"VAR_EXTERNAL '{v.text}' must be CONSTANT: the VAR_GLOBAL is CONSTANT")
-                v.global_sym = g
+            self.st.global_scope[v.name] = v
+        self.st.scope = None

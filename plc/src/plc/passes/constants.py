@@ -8,10 +8,13 @@ import math
 from .. import ast as A
 from ..symbols import VarSym
 from ..timelit import decode
-from .context import PassBase
+from .context import Pass
 
 
-class ConstantEval(PassBase):
+class ConstantEval(Pass):
+    """Asked by the other passes; no pass of its own."""
+    pass_name = "constants"
+
     def const_value(self, e: A.Expr):
         """Fold a constant expression: int, float, bool, or None if not constant."""
         if isinstance(e, A.IntLit):
@@ -75,7 +78,7 @@ class ConstantEval(PassBase):
             return None
         busy.add(name)
         try:
-            for f in self.files:
+            for f in self.st.files:
                 for cfg in (i for i in f.items if isinstance(i, A.Configuration)):
                     for b in [*cfg.globals, *(b for r in cfg.resources for b in r.globals)]:
                         for d in b.decls if b.constant else []:
@@ -86,7 +89,7 @@ class ConstantEval(PassBase):
             busy.discard(name)
 
     def lookup_const(self, name: str):
-        scope = self.scope
+        scope = self.st.scope
         if scope is not None:
             s = scope.lookup(name)
             if s is not None:

@@ -1,5 +1,6 @@
 """What the semantic passes share: the `Program` they build (the tables the C generator reads), the
-records of a configuration, and `PassBase`, the shared state and diagnostic helpers.
+records of a configuration, `SemanticState` (the one state object every pass is handed) and `Pass`, the base
+of every pass with its diagnostic helpers and its accessors to the other passes.
 """
 from __future__ import annotations
 
@@ -72,6 +73,7 @@ class Program:
     sites: list[Site] = field(default_factory=list)
     array_types: list[T.ArrayType] = field(default_factory=list)
     builtin_files: set[str] = field(default_factory=set)
+    facts: list[portability.Fact] = field(default_factory=list)   # the passes' portability facts
 
     def site(self, pos: Pos, pou: str) -> int:
         self.sites.append(Site(pos, pou))
@@ -84,9 +86,10 @@ class LoopCtx:
         self.for_vars: list[VarSym] = []
 
 
-class PassBase:
-    """The state every semantic pass shares (one object: the passes are mixins of sema.Analyzer) and
-    the diagnostic helpers."""
+class SemanticState:
+    """What the semantic passes share, and nothing else: the files, the diagnostics, the `Program` being
+    built, the declarations found by pass 1, the global variables, and where the bodies pass stands (POU,
+    FUNCTION, scope).  One object, handed to every pass; each pass keeps its own working state itself."""
 
     def __init__(self, files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[str] | None = None,
                  test_build: bool = False):
@@ -94,18 +97,17 @@ class PassBase:
         self.d = diags
         self.prog = Program(files)
         self.prog.builtin_files = builtin_files or set()
-        self.type_decls: dict[str, A.TypeDecl] = {}
-        self.pou_decls: dict[str, A.Pou] = {}
-        self.resolving: set[str] = set()
-        self.current_pou: A.Pou | None = None
         self.test_build = test_build
-        self.global_scope: dict[str, VarSym] = {}
-        self.locations: dict[tuple, A.VarDecl] = {}      # (scope, (area, size, parts)) -> first declaration
-        self.output_owner: dict[tuple, tuple[str, A.VarDecl, str]] = {}   # %Q address -> first scope
-        # where the bodies pass is: the POU's FuncSym (FUNCTIONs), its scope, its loop nesting
+        self.type_decls: dict[str, A.TypeDecl] = {}       # pass 1
+        self.pou_decls: dict[str, A.Pou] = {}             # pass 1
+        self.global_scope: dict[str, VarSym] = {}         # pass 4 (names reserved by pass 1)
+        # where the passes stand: the POU, the FUNCTION's FuncSym, the scope names are looked up in
+        self.current_pou: A.Pou | None = None
         self.func: FuncSym | None = None
         self.scope: Scope | None = None
-        self.loop = LoopCtx()
+        # the passes of this build by name (driver.analyze fills it); a pass reaches another through
+        # the accessors of Pass below, so who asks whom is visible in the code
+        self.passes: dict[str, "Pass"] = {}
 
     def err(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
         self.d.error(pos, msg, hint, code)
@@ -114,10 +116,63 @@ class PassBase:
         self.d.warning(pos, msg, hint, code)
 
     def port(self, pos: Pos, rule: str, **details: str) -> None:
-        """Record a portability fact (a rule of portability.RULES) where it was found; built-in files are exempt."""
+        """Record a portability fact (a rule of portability.RULES) where it was found, for the portability pass;
+        built-in files are exempt."""
         if pos.file in self.prog.builtin_files:
             return
-        portability.report(self.d, rule, pos, **details)
+        self.prog.facts.append(portability.fact(rule, pos, **details))
 
     def in_builtin(self) -> bool:
         return self.current_pou is not None and self.current_pou.pos.file in self.prog.builtin_files
+
+
+class Pass:
+    """A semantic pass (or the helper of one) over the shared state `st`.  The passes that others ask for
+    types, constants, initial values and expressions are reached by name through the accessors below."""
+
+    pass_name = ""
+
+    def __init__(self, st: SemanticState) -> None:
+        self.st = st
+
+    def run(self) -> None:
+        """The pass over the whole build (helpers that only answer the other passes have none)."""
+        raise NotImplementedError(f"{type(self).__name__} is not a pass of its own")
+
+    # diagnostics
+    def err(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
+        self.st.err(pos, msg, hint, code)
+
+    def warn(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
+        self.st.warn(pos, msg, hint, code)
+
+    def port(self, pos: Pos, rule: str, **details: str) -> None:
+        self.st.port(pos, rule, **details)
+
+    def in_builtin(self) -> bool:
+        return self.st.in_builtin()
+
+    # the other passes
+    @property
+    def type_pass(self):
+        return self.st.passes["types"]
+
+    @property
+    def const_eval(self):
+        return self.st.passes["constants"]
+
+    @property
+    def scope_pass(self):
+        return self.st.passes["scopes"]
+
+    @property
+    def stmt_pass(self):
+        return self.st.passes["bodies"]
+
+    @property
+    def expr_typing(self):
+        return self.st.passes["expressions"]
+
+    @property
+    def call_typing(self):
+        return self.st.passes["calls"]

@@ -7,19 +7,24 @@ from .. import ast as A
 from .. import types as T
 from ..diagnostics import Pos
 from ..stdfuncs import STD_FUNCS, conversion
-from .context import PassBase
+from .context import Pass
 
 
-class DeclarationPass(PassBase):
-    def declare(self) -> None:
-        self.declared: dict[str, Pos] = {}
-        for f in self.files:
+class DeclarationPass(Pass):
+    pass_name = "declarations"
+
+    def __init__(self, st) -> None:
+        super().__init__(st)
+        self.declared: dict[str, Pos] = {}       # name -> where it was first declared
+
+    def run(self) -> None:
+        for f in self.st.files:
             for item in f.items:
                 A.handler(self, "d_", item, "the declarations pass")(item)
         # POU types are known before any type is resolved (FB instances as struct members are errors)
-        for name, pou in self.pou_decls.items():
+        for name, pou in self.st.pou_decls.items():
             if pou.kind in ("FUNCTION_BLOCK", "PROGRAM"):
-                self.prog.pous[name] = T.PouType(name, pou, pou.kind, builtin=pou.pos.file in self.prog.builtin_files)
+                self.st.prog.pous[name] = T.PouType(name, pou, pou.kind, builtin=pou.pos.file in self.st.prog.builtin_files)
 
     def claim(self, name: str, text: str, pos: Pos, what: str) -> bool:
         """Whether `name` is free for a new type, POU or configuration (a clash is reported)."""
@@ -31,7 +36,7 @@ class DeclarationPass(PassBase):
             self.err(pos, f"'{text}' is the name of an elementary type")
             return False
         if name in STD_FUNCS or conversion(name) is not None:
-            if pos.file not in self.prog.builtin_files:
+            if pos.file not in self.st.prog.builtin_files:
                 self.err(pos, f"'{text}' is the name of a standard function")
                 return False
         self.declared[name] = pos
@@ -40,11 +45,11 @@ class DeclarationPass(PassBase):
     def d_TypeBlock(self, item: A.TypeBlock) -> None:
         for td in item.decls:
             if self.claim(td.name, td.text, td.pos, "type"):
-                self.type_decls[td.name] = td
+                self.st.type_decls[td.name] = td
 
     def d_Pou(self, item: A.Pou) -> None:
         if self.claim(item.name, item.text, item.pos, "POU"):
-            self.pou_decls[item.name] = item
+            self.st.pou_decls[item.name] = item
 
     def d_Configuration(self, item: A.Configuration) -> None:
         self.claim(item.name, item.text, item.pos, "CONFIGURATION")
@@ -52,4 +57,4 @@ class DeclarationPass(PassBase):
     def d_VarBlock(self, item: A.VarBlock) -> None:
         # VAR_GLOBAL outside a configuration (extension): treat as globals of every configuration
         for vd in item.decls:
-            self.global_scope.setdefault(vd.name, None)  # filled in configuration()
+            self.st.global_scope.setdefault(vd.name, None)  # filled in configuration()

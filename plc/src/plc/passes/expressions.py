@@ -7,10 +7,13 @@ from .. import ast as A
 from .. import types as T
 from ..symbols import Scope
 from ..timelit import decode
-from .context import PassBase, TIME_KIND_TYPE
+from .context import Pass, TIME_KIND_TYPE
 
 
-class ExpressionTyping(PassBase):
+class ExpressionTyping(Pass):
+    """Asked by the bodies, scopes and configuration passes; no pass of its own."""
+    pass_name = "expressions"
+
     def expr(self, e: A.Expr, scope: Scope | None, expected: T.Type | None, lvalue: bool = False,
              for_init: bool = False) -> T.Type:
         t = self._expr(e, scope, expected, lvalue)
@@ -26,7 +29,7 @@ class ExpressionTyping(PassBase):
             return
         lit = e.ty
         if lit.cat == "int" and b.cat in ("int", "uint", "bit"):
-            v = self.const_int(e)
+            v = self.const_eval.const_int(e)
             if v is not None and not (b.lo <= v <= b.hi):
                 self.err(e.pos, f"literal {v} is out of range for {b.name} ({b.lo}..{b.hi})")
             self.set_type(e, b)
@@ -35,7 +38,7 @@ class ExpressionTyping(PassBase):
         elif lit.cat == "int" and b.cat == "real":
             self.set_type(e, b)   # an integer literal as a REAL: allowed, value converted
         elif lit.cat == "int" and b.cat == "bool":
-            v = self.const_int(e)
+            v = self.const_eval.const_int(e)
             if v in (0, 1):
                 self.set_type(e, b)
 
@@ -133,15 +136,15 @@ class ExpressionTyping(PassBase):
         return self.binary(e, scope, expected)
 
     def t_Call(self, e: A.Call, scope, expected) -> T.Type:
-        return self.call_expr(e, scope, expected)
+        return self.call_typing.call_expr(e, scope, expected)
 
     def int_lit(self, e: A.IntLit) -> T.Type:
         if e.prefix is None:
             return T.ANY_INT_LIT
         t = T.ELEMENTARY.get(e.prefix)
         if t is None:
-            if e.prefix in self.type_decls:
-                tt = self.named_type(e.prefix, e.pos)
+            if e.prefix in self.st.type_decls:
+                tt = self.type_pass.named_type(e.prefix, e.pos)
                 b = T.resolve_base(tt)
                 if isinstance(b, T.Elementary) and b.is_int:
                     t = b
@@ -162,7 +165,7 @@ class ExpressionTyping(PassBase):
         return t
 
     def enum_lit(self, e: A.EnumLit) -> T.Type:
-        t = self.named_type(e.type_name, e.pos) if e.type_name in self.type_decls else None
+        t = self.type_pass.named_type(e.type_name, e.pos) if e.type_name in self.st.type_decls else None
         if t is None:
             self.err(e.pos, f"unknown type '{e.type_name}' in '{e.type_name}#{e.value}'")
             return T.ERROR
@@ -178,19 +181,19 @@ class ExpressionTyping(PassBase):
 
     def name(self, e: A.Name, scope: Scope | None, expected: T.Type | None) -> T.Type:
         sym = scope.lookup(e.name) if scope else None
-        if sym is None and self.func is not None and scope is self.func.scope and e.name == self.func.name:
-            e.sym = self.func
-            return self.func.ret
+        if sym is None and self.st.func is not None and scope is self.st.func.scope and e.name == self.st.func.name:
+            e.sym = self.st.func
+            return self.st.func.ret
         if sym is None and e.name == "CURRENT_TIME" and self.in_builtin():
             e.sym = "CURRENT_TIME"
             return T.TIME
-        if sym is None and e.name in ("EN", "ENO") and self.current_pou is not None:
+        if sym is None and e.name in ("EN", "ENO") and self.st.current_pou is not None:
             e.sym = e.name          # the POU's implicit EN input / ENO output
             return T.BOOL
         if sym is not None:
             e.sym = sym
             return sym.type
-        enums = self.prog.enum_values.get(e.name)
+        enums = self.st.prog.enum_values.get(e.name)
         if enums:
             exp = T.resolve_base(expected) if expected is not None else None
             if len(enums) == 1:
@@ -204,11 +207,11 @@ class ExpressionTyping(PassBase):
                 return T.ERROR
             e.sym = (et, e.name)
             return et
-        if e.name in self.pou_decls:
+        if e.name in self.st.pou_decls:
             self.err(e.pos, f"'{e.text}' is a POU, not a variable")
             return T.ERROR
         cands = list(scope.vars) if scope else []
-        self.err(e.pos, f"undeclared variable '{e.text}'", self.suggest(e.name, cands))
+        self.err(e.pos, f"undeclared variable '{e.text}'", self.type_pass.suggest(e.name, cands))
         return T.ERROR
 
     def member(self, e: A.Member, scope: Scope | None) -> T.Type:
@@ -219,7 +222,7 @@ class ExpressionTyping(PassBase):
         if isinstance(b, T.StructType):
             m = b.members.get(e.name)
             if m is None:
-                self.err(e.pos, f"'{b.name}' has no member '{e.text}'", self.suggest(e.name, b.members))
+                self.err(e.pos, f"'{b.name}' has no member '{e.text}'", self.type_pass.suggest(e.name, b.members))
                 return T.ERROR
             return m.type
         if isinstance(b, T.PouType):
@@ -227,7 +230,7 @@ class ExpressionTyping(PassBase):
             if e.name in ("ENO", "EN") and v is None:
                 return T.BOOL
             if v is None:
-                self.err(e.pos, f"{b.name} has no member '{e.text}'", self.suggest(e.name, b.scope.vars if b.scope else []))
+                self.err(e.pos, f"{b.name} has no member '{e.text}'", self.type_pass.suggest(e.name, b.scope.vars if b.scope else []))
                 return T.ERROR
             if v.section in ("VAR", "VAR_TEMP", "VAR_EXTERNAL") and not self.in_builtin():
                 self.err(e.pos, f"'{e.text}' is internal to {b.name}; only inputs and outputs can be read from outside")
@@ -261,7 +264,7 @@ class ExpressionTyping(PassBase):
                 self.err(e.pos, f"array needs {len(tb.dims)} indices, got {len(idx)}")
                 return T.ERROR
             for k in range(n):
-                v = self.const_int(idx[k])
+                v = self.const_eval.const_int(idx[k])
                 lo, hi = tb.dims[k]
                 if v is not None and not (lo <= v <= hi):
                     self.err(idx[k].pos, f"index {v} is out of bounds {lo}..{hi}")
@@ -353,7 +356,7 @@ class ExpressionTyping(PassBase):
                 return T.ERROR
             if "real" in (lb.cat, rb.cat):
                 return T.ANY_REAL_LIT
-            if op == "/" and self.const_int(e.right) == 0:
+            if op == "/" and self.const_eval.const_int(e.right) == 0:
                 self.err(e.right.pos, "division by zero")
             return T.ANY_INT_LIT
         if isinstance(lb, T.LiteralType) or isinstance(rb, T.LiteralType):
@@ -396,7 +399,7 @@ class ExpressionTyping(PassBase):
         if op == "MOD" and lb.is_real:
             self.err(e.pos, "MOD needs integers")
             return T.ERROR
-        if op in ("/", "MOD") and self.const_int(e.right) == 0 and lb.is_int:
+        if op in ("/", "MOD") and self.const_eval.const_int(e.right) == 0 and lb.is_int:
             if op == "/":
                 self.err(e.right.pos, "integer division by zero")
         return lb
@@ -426,7 +429,7 @@ class ExpressionTyping(PassBase):
         if op in ("*", "/") and lc == "time" and (rc in ("int", "uint", "real", "litint", "litreal")):
             if rc.startswith("lit"):
                 self.fix_literal(e.right, T.LREAL if rc == "litreal" else T.DINT)
-            if op == "/" and self.const_value(e.right) == 0:
+            if op == "/" and self.const_eval.const_value(e.right) == 0:
                 self.err(e.right.pos, "division of a TIME by zero")
             return T.TIME
         if op == "*" and rc == "time" and lc in ("int", "uint", "real", "litint", "litreal"):

@@ -5,28 +5,35 @@ from __future__ import annotations
 from .. import ast as A
 from .. import types as T
 from ..symbols import FuncSym, Scope, VarSym
-from .context import PassBase, LOCATION_SIZES, LOCATED_OK
+from .context import Pass, LOCATION_SIZES, LOCATED_OK
 
 
-class ScopePass(PassBase):
-    def build_scopes(self) -> None:
-        for name, pou in self.pou_decls.items():
-            self.current_pou = pou
+class ScopePass(Pass):
+    pass_name = "scopes"
+
+    def __init__(self, st) -> None:
+        super().__init__(st)
+        self.locations: dict[tuple, A.VarDecl] = {}      # (scope, (area, size, parts)) -> first declaration
+        self.output_owner: dict[tuple, tuple[str, A.VarDecl, str]] = {}   # %Q address -> first scope
+
+    def run(self) -> None:
+        for name, pou in self.st.pou_decls.items():
+            self.st.current_pou = pou
             scope = Scope(name, pou.kind)
-            self.scope = scope
+            self.st.scope = scope
             if pou.kind == "FUNCTION":
-                ret = self.type_ref(pou.ret) if pou.ret else T.ERROR
+                ret = self.type_pass.type_ref(pou.ret) if pou.ret else T.ERROR
                 if isinstance(ret, T.PouType):
                     self.err(pou.ret.pos, "a FUNCTION cannot return a function block")
                     ret = T.ERROR
-                fs = FuncSym(name, pou.text, pou, ret, scope, builtin=pou.pos.file in self.prog.builtin_files)
-                self.prog.funcs[name] = fs
+                fs = FuncSym(name, pou.text, pou, ret, scope, builtin=pou.pos.file in self.st.prog.builtin_files)
+                self.st.prog.funcs[name] = fs
             else:
-                self.prog.pous[name].scope = scope
+                self.st.prog.pous[name].scope = scope
             for block in pou.blocks:
                 self.var_block(block, scope, pou)
-            self.current_pou = None
-            self.scope = None
+            self.st.current_pou = None
+            self.st.scope = None
 
     def var_block(self, block: A.VarBlock, scope: Scope, pou: A.Pou | None) -> None:
         kind = pou.kind if pou else "CONFIGURATION"
@@ -63,7 +70,7 @@ class ScopePass(PassBase):
         if pou is not None and d.name == pou.name and pou.kind == "FUNCTION":
             self.err(d.pos, f"'{d.text}' is the name of the FUNCTION itself (its result)")
             return None
-        t = self.type_spec(d.spec)
+        t = self.type_pass.type_spec(d.spec)
         if isinstance(d.spec, A.SubrangeSpec) and isinstance(t, T.SubrangeType) and d.init is None and t.lo != 0 \
                 and d.section not in ("VAR_IN_OUT", "VAR_EXTERNAL"):
             self.port(d.pos, "subrange-default", lo=t.lo)
@@ -94,11 +101,11 @@ class ScopePass(PassBase):
             self.err(d.pos, f"CONSTANT '{d.text}' needs an initial value")
         init = d.init
         if init is None and d.section not in ("VAR_IN_OUT", "VAR_EXTERNAL"):
-            init = self.alias_init(d.spec)
+            init = self.type_pass.alias_init(d.spec)
         sym = VarSym(d.name, d.text, t, d.section, d.pos, d, block.constant, block.retain, d.location, init,
                      owner=pou.name if pou else "")
         if block.constant and d.init is not None and isinstance(d.init, A.Expr):
-            sym.const_value = self.const_value(d.init)
+            sym.const_value = self.const_eval.const_value(d.init)
         scope.vars[d.name] = sym
         return sym
 
@@ -165,7 +172,7 @@ class ScopePass(PassBase):
             for rep, v in init.items:
                 n = 1
                 if rep is not None:
-                    n = self.const_int(rep) or 0
+                    n = self.const_eval.const_int(rep) or 0
                     if n <= 0:
                         self.err(rep.pos, "repeat count must be a positive integer")
                 count += n
@@ -194,9 +201,9 @@ class ScopePass(PassBase):
         if isinstance(b, (T.ArrayType, T.StructType)):
             self.err(init.pos, f"{t} needs an initialiser in {'[...]' if isinstance(b, T.ArrayType) else '(...)'}")
             return
-        saved = self.scope
-        ty = self.expr(init, saved, t, for_init=True)
-        self.assign_compat(init, ty, t, init.pos, "initial value")
+        saved = self.st.scope
+        ty = self.expr_typing.expr(init, saved, t, for_init=True)
+        self.call_typing.assign_compat(init, ty, t, init.pos, "initial value")
         if not self.is_constant_expr(init):
             self.err(init.pos, "an initial value must be a constant expression")
 

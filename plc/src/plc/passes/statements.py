@@ -1,4 +1,4 @@
-"""Pass 5, bodies: every statement of every POU body checked (conditions, assignments, CASE, FOR, calls as
+"""Pass 6, bodies: every statement of every POU body checked (conditions, assignments, CASE, FOR, calls as
 statements); expressions are typed by expressions.py and calls.py.
 """
 from __future__ import annotations
@@ -7,22 +7,28 @@ from .. import ast as A
 from .. import types as T
 from ..diagnostics import Pos
 from ..symbols import VarSym
-from .context import PassBase, LoopCtx
+from .context import Pass, LoopCtx
 
 
-class StatementPass(PassBase):
-    def check_bodies(self) -> None:
-        for name, pou in self.pou_decls.items():
-            self.current_pou = pou
+class StatementPass(Pass):
+    pass_name = "bodies"
+
+    def __init__(self, st) -> None:
+        super().__init__(st)
+        self.loop = LoopCtx()                        # loop nesting of the statement being checked
+
+    def run(self) -> None:
+        for name, pou in self.st.pou_decls.items():
+            self.st.current_pou = pou
             if pou.kind == "FUNCTION":
-                self.scope = self.prog.funcs[name].scope
-                self.func = self.prog.funcs[name]
+                self.st.scope = self.st.prog.funcs[name].scope
+                self.st.func = self.st.prog.funcs[name]
             else:
-                self.scope = self.prog.pous[name].scope
-                self.func = None
+                self.st.scope = self.st.prog.pous[name].scope
+                self.st.func = None
             self.loop = LoopCtx()
             self.stmts(pou.body)
-            self.current_pou = None
+            self.st.current_pou = None
 
     def stmts(self, body: list[A.Stmt]) -> None:
         for s in body:
@@ -78,21 +84,21 @@ class StatementPass(PassBase):
         pass
 
     def condition(self, e: A.Expr, what: str) -> None:
-        t = self.expr(e, self.scope, T.BOOL)
+        t = self.expr_typing.expr(e, self.st.scope, T.BOOL)
         if not isinstance(t, T.ErrorType) and not T.is_elem(t, "bool"):
             self.err(e.pos, f"{what} condition must be BOOL, not {t}")
 
     def assign(self, s: A.Assign) -> None:
         tt = self.lvalue(s.target, "assign to")
-        vt = self.expr(s.value, self.scope, tt if not isinstance(tt, T.ErrorType) else None)
+        vt = self.expr_typing.expr(s.value, self.st.scope, tt if not isinstance(tt, T.ErrorType) else None)
         if isinstance(T.resolve_base(tt), T.PouType):
             self.err(s.pos, "function block instances cannot be assigned")
             return
-        self.assign_compat(s.value, vt, tt, s.value.pos, "assignment")
+        self.call_typing.assign_compat(s.value, vt, tt, s.value.pos, "assignment")
 
     def lvalue(self, target: A.Expr, verb: str) -> T.Type:
         """Check an assignment target; report writes to constants, inputs and the FOR variable."""
-        t = self.expr(target, self.scope, None, lvalue=True)
+        t = self.expr_typing.expr(target, self.st.scope, None, lvalue=True)
         root = target
         path_through_instance = False
         while isinstance(root, (A.Member, A.Index, A.BitAccess)):
@@ -117,7 +123,7 @@ class StatementPass(PassBase):
             elif sym.location is not None and sym.location.area == "I" and not path_through_instance:
                 self.err(target.pos, f"cannot {verb} '{sym.text}': it is located at the input {sym.location.text}")
             elif sym.section == "VAR_INPUT" and not path_through_instance and target is root \
-                    and self.current_pou is not None and self.current_pou.kind != "FUNCTION" and not self.in_builtin():
+                    and self.st.current_pou is not None and self.st.current_pou.kind != "FUNCTION" and not self.in_builtin():
                 self.err(target.pos, f"cannot {verb} input '{sym.text}' inside its own function block",
                          "copy it to a local variable first")
             if sym in self.loop.for_vars:
@@ -129,7 +135,7 @@ class StatementPass(PassBase):
         return t
 
     def case(self, s: A.Case) -> None:
-        st = self.expr(s.selector, self.scope, None)
+        st = self.expr_typing.expr(s.selector, self.st.scope, None)
         b = T.resolve_base(st)
         if isinstance(b, T.LiteralType):
             b = T.DINT
@@ -144,7 +150,7 @@ class StatementPass(PassBase):
                 for e in (lab.lo, lab.hi):
                     if e is None:
                         continue
-                    lt = self.expr(e, self.scope, b if not isinstance(b, T.ErrorType) else None)
+                    lt = self.expr_typing.expr(e, self.st.scope, b if not isinstance(b, T.ErrorType) else None)
                     if isinstance(b, T.ErrorType) or isinstance(lt, T.ErrorType):
                         continue
                     if isinstance(b, T.EnumType):
@@ -154,7 +160,7 @@ class StatementPass(PassBase):
                             continue
                         values.append(b.values.index(e.sym[1] if isinstance(e, A.Name) else e.value))
                     else:
-                        if not self.is_constant_expr(e):
+                        if not self.scope_pass.is_constant_expr(e):
                             self.err(e.pos, "CASE labels must be constants")
                             continue
                         if isinstance(e, A.Name) or (isinstance(e, A.Unary) and isinstance(e.operand, A.Name)):
@@ -162,7 +168,7 @@ class StatementPass(PassBase):
                         if not (isinstance(T.resolve_base(lt), T.LiteralType) or T.same_type(lt, b)):
                             self.err(e.pos, f"CASE label of type {lt} does not match the selector type {b}")
                             continue
-                        v = self.const_int(e)
+                        v = self.const_eval.const_int(e)
                         if v is None:
                             self.err(e.pos, "CASE label must be an integer constant")
                             continue
@@ -181,7 +187,7 @@ class StatementPass(PassBase):
             self.stmts(s.orelse)
 
     def for_stmt(self, s: A.For) -> None:
-        vt = self.expr(s.var, self.scope, None)
+        vt = self.expr_typing.expr(s.var, self.st.scope, None)
         sym = s.var.sym
         if isinstance(sym, VarSym):
             if not T.is_elem(vt, "int", "uint"):
@@ -191,9 +197,9 @@ class StatementPass(PassBase):
         for e in (s.start, s.end, s.step):
             if e is None:
                 continue
-            et = self.expr(e, self.scope, vt if not isinstance(vt, T.ErrorType) else None)
-            self.assign_compat(e, et, vt, e.pos, "FOR bound")
-        if s.step is not None and self.const_int(s.step) == 0:
+            et = self.expr_typing.expr(e, self.st.scope, vt if not isinstance(vt, T.ErrorType) else None)
+            self.call_typing.assign_compat(e, et, vt, e.pos, "FOR bound")
+        if s.step is not None and self.const_eval.const_int(s.step) == 0:
             self.err(s.step.pos, "FOR step BY 0 never ends")
         self.loop.loop_depth += 1
         if isinstance(sym, VarSym):
@@ -205,9 +211,9 @@ class StatementPass(PassBase):
 
     def call_stmt(self, s: A.CallStmt) -> None:
         c = s.call
-        sym = self.scope.lookup(c.func) if self.scope else None
-        if sym is None and c.func in self.global_scope:
-            sym = self.global_scope[c.func]
+        sym = self.st.scope.lookup(c.func) if self.st.scope else None
+        if sym is None and c.func in self.st.global_scope:
+            sym = self.st.global_scope[c.func]
         if sym is not None and isinstance(T.resolve_base(sym.type), T.PouType):
             self.fb_call(c, sym)
             return
@@ -218,7 +224,7 @@ class StatementPass(PassBase):
             return
         # a function call used as a statement
         self.port(c.pos, "call-statement")
-        self.expr(c, self.scope, None)
+        self.expr_typing.expr(c, self.st.scope, None)
 
     # -------------------------------------------------------------- FB calls --
     def fb_call(self, c: A.Call, sym: VarSym) -> None:
@@ -226,7 +232,7 @@ class StatementPass(PassBase):
         c.target = sym
         c.ty = None
         if ft.scope is not None:
-            self.bind_args(c, ft.scope, ft.name, sym.text, is_fb=True)
+            self.call_typing.bind_args(c, ft.scope, ft.name, sym.text, is_fb=True)
 
     def is_lvalue(self, e: A.Expr) -> bool:
         if isinstance(e, A.Name):

@@ -6,18 +6,24 @@ from __future__ import annotations
 from .. import ast as A
 from .. import types as T
 from ..diagnostics import InternalError, Pos
-from .context import PassBase
+from .context import Pass
 
 
-class TypePass(PassBase):
-    def resolve_types(self) -> None:
-        for name in self.type_decls:
-            self.named_type(name, self.type_decls[name].pos)
+class TypePass(Pass):
+    pass_name = "types"
+
+    def __init__(self, st) -> None:
+        super().__init__(st)
+        self.resolving: set[str] = set()          # named types being resolved (a cycle is an error)
+
+    def run(self) -> None:
+        for name in self.st.type_decls:
+            self.named_type(name, self.st.type_decls[name].pos)
 
     def named_type(self, name: str, pos: Pos) -> T.Type:
-        if name in self.prog.types:
-            return self.prog.types[name]
-        td = self.type_decls.get(name)
+        if name in self.st.prog.types:
+            return self.st.prog.types[name]
+        td = self.st.type_decls.get(name)
         if td is None:
             return T.ERROR
         if name in self.resolving:
@@ -32,21 +38,21 @@ class TypePass(PassBase):
             if isinstance(t, T.StructType):
                 self.err(td.pos, "a STRUCT type takes initial values per member, not for the whole type")
             else:
-                self.check_init(td.init, t)
+                self.scope_pass.check_init(td.init, t)
                 if not isinstance(td.spec, A.TypeRef):
                     t = self.with_default(t, td.init)
                 # an alias (TYPE Speed : INT := 5) shares its type object: the initial
                 # value belongs to the name and is applied where the name is used (alias_init)
-        self.prog.types[name] = t
-        self.prog.type_order.append(name)
+        self.st.prog.types[name] = t
+        self.st.prog.type_order.append(name)
         return t
 
     def alias_init(self, spec):
         """Initial value a declaration of type `spec` inherits from a TYPE alias chain, if any."""
         seen = set()
-        while isinstance(spec, A.TypeRef) and spec.name in self.type_decls and spec.name not in seen:
+        while isinstance(spec, A.TypeRef) and spec.name in self.st.type_decls and spec.name not in seen:
             seen.add(spec.name)
-            td = self.type_decls[spec.name]
+            td = self.st.type_decls[spec.name]
             if td.init is not None:
                 return td.init if isinstance(td.spec, A.TypeRef) else None
             spec = td.spec
@@ -54,14 +60,14 @@ class TypePass(PassBase):
 
     def with_default(self, t: T.Type, init) -> T.Type:
         """Types declared with an initial value keep it (TYPE Speed : INT := 5; END_TYPE)."""
-        self.prog.type_inits[id(t)] = init
+        self.st.prog.type_inits[id(t)] = init
         return t
 
     def type_ref(self, ref: A.TypeRef) -> T.Type:
         name = ref.name
         if name in T.ELEMENTARY:
             if name == "STRING" and ref.length is not None:
-                n = self.const_int(ref.length)
+                n = self.const_eval.const_int(ref.length)
                 self.port(ref.pos, "string-length")
                 if n is None or not 1 <= n <= 126:
                     self.err(ref.length.pos, "string length must be a constant between 1 and 126")
@@ -71,15 +77,15 @@ class TypePass(PassBase):
         if name in T.UNSUPPORTED:
             self.err(ref.pos, T.UNSUPPORTED[name])
             return T.ERROR
-        if name in self.type_decls:
+        if name in self.st.type_decls:
             return self.named_type(name, ref.pos)
-        if name in self.prog.pous:
-            return self.prog.pous[name]
-        if name in self.pou_decls:
+        if name in self.st.prog.pous:
+            return self.st.prog.pous[name]
+        if name in self.st.pou_decls:
             self.err(ref.pos, f"'{ref.text}' is a FUNCTION, not a type")
             return T.ERROR
-        self.err(ref.pos, f"unknown type '{ref.text}'", self.suggest(name, list(self.type_decls) +
-                                                                     list(self.prog.pous) + list(T.ELEMENTARY)))
+        self.err(ref.pos, f"unknown type '{ref.text}'", self.suggest(name, list(self.st.type_decls) +
+                                                                     list(self.st.prog.pous) + list(T.ELEMENTARY)))
         return T.ERROR
 
     def suggest(self, name: str, candidates) -> str | None:
@@ -108,12 +114,12 @@ class TypePass(PassBase):
                 self.port(spec.pos, "enum-base")
             et = T.EnumType(name, vals)
             for v in vals:
-                self.prog.enum_values.setdefault(v, []).append(et)
+                self.st.prog.enum_values.setdefault(v, []).append(et)
             return et
         if isinstance(spec, A.SubrangeSpec):
             base = self.type_ref(spec.base)
             b = T.resolve_base(base)
-            lo, hi = self.const_int(spec.lo), self.const_int(spec.hi)
+            lo, hi = self.const_eval.const_int(spec.lo), self.const_eval.const_int(spec.hi)
             if not (isinstance(b, T.Elementary) and b.is_int):
                 if not isinstance(b, T.ErrorType):
                     self.err(spec.pos, f"a subrange needs an integer base type, not {base}")
@@ -130,10 +136,10 @@ class TypePass(PassBase):
             for lo_e, hi_e in spec.dims:
                 for e in (lo_e, hi_e):
                     n = e if isinstance(e, A.Name) else e.operand if isinstance(e, A.Unary) else None
-                    if isinstance(n, A.Name) and not self.is_external_constant(n.name):
+                    if isinstance(n, A.Name) and not self.const_eval.is_external_constant(n.name):
                         # (a VAR_GLOBAL CONSTANT reached through VAR_EXTERNAL CONSTANT is fine with iec2c -a)
                         self.port(e.pos, "array-bound")
-                lo, hi = self.const_int(lo_e), self.const_int(hi_e)
+                lo, hi = self.const_eval.const_int(lo_e), self.const_eval.const_int(hi_e)
                 if lo is None or hi is None:
                     self.err(lo_e.pos, "array bounds must be constant integers")
                     return T.ERROR
@@ -149,11 +155,11 @@ class TypePass(PassBase):
             if isinstance(elem, T.ErrorType):
                 return T.ERROR
             at = T.ArrayType(dims, elem)
-            for existing in self.prog.array_types:
+            for existing in self.st.prog.array_types:
                 if existing.dims == at.dims and existing.elem is at.elem:
                     return existing
-            at.cname = f"ARR{len(self.prog.array_types)}"
-            self.prog.array_types.append(at)
+            at.cname = f"ARR{len(self.st.prog.array_types)}"
+            self.st.prog.array_types.append(at)
             if isinstance(T.resolve_base(elem), T.ArrayType):
                 self.port(spec.pos, "array-of-array")
             if at.count() > 1_000_000:
@@ -175,7 +181,7 @@ class TypePass(PassBase):
                     self.err(m.pos, "function block instances inside a STRUCT are not supported by MATIEC")
                     mt = T.ERROR
                 if m.init is not None and not isinstance(mt, T.ErrorType):
-                    self.check_init(m.init, mt)
+                    self.scope_pass.check_init(m.init, mt)
                 st.members[m.name] = T.StructMemberT(m.name, mt, m.init if m.init is not None
                                                      else self.alias_init(m.spec), m.pos)
             return st

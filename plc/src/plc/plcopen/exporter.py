@@ -19,6 +19,7 @@ from pathlib import Path
 from lxml import etree
 
 from .. import ast as A
+from .. import portability
 from ..diagnostics import Diagnostics, Pos
 from ..driver import UserError, collect_files, display_name, read_source
 from ..parser import parse
@@ -208,7 +209,9 @@ def export(paths: list[str], diags: Diagnostics) -> bytes | None:
     for f in files:
         name = display_name(f)
         text = read_source(f)
-        parsed.append((Source(name, text), parse(text, name, diags)))
+        tree = parse(text, name, diags)
+        portability.warn(tree.facts, diags)  # what the lexer and the parser found, as a build would report it
+        parsed.append((Source(name, text), tree))
     if diags.has_errors():
         return None
     root = E("project")

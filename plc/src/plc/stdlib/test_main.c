@@ -1,11 +1,16 @@
 /*
  * test_main.c - the scan-cycle test runner linked with a test build.
  *
- * It owns the clock: before every scan it writes the scan number and the time
- * into the test's ST_TestContext and into the program clock, calls the test
- * body once, then advances the clock by CycleTime (+ Advance).  Each test runs
- * on a fresh, freshly initialised instance.  Results go to stdout as one
- * line per event for `plc test` to format:
+ * Every scan goes through the scan core that the soft-PLC runtime uses
+ * (native/runtime/scan_core.c): input latch, forced values, tasks due,
+ * output publication.  The runner only swaps the runtime's two outside
+ * parts: the clock is simulated, and the I/O image is plain memory (direct
+ * I/O, no network).  The task is the test body: before every scan the runner
+ * writes the scan number and the time into the test's ST_TestContext, the
+ * core sets the program clock and calls the body once, then the runner
+ * advances the clock by CycleTime (+ Advance).  Each test runs on a fresh,
+ * freshly initialised instance.  Results go to stdout as one line per event
+ * for `plc test` to format:
  *
  *   BEGIN <index>
  *   ASSERT <site> <message>\t<expected>\t<actual>
@@ -23,6 +28,7 @@
 #include <sys/time.h>
 
 #include "plc_abi.h"
+#include "scan_core.h"
 
 #define FIELD(ctx, off, type) (*(type *)((char *)(ctx) + plc_test_ctx_layout.off))
 
@@ -59,6 +65,21 @@ void plc_on_assert(int32_t site, int ok, const void *ctx) {
     putchar('\n');
 }
 
+/* The test being run, as the scan core's task. */
+typedef struct test_task {
+    const plc_test_t *test;
+    void *self;
+    void *ctx;
+} test_task_t;
+
+static int run_test_body(void *arg, uint64_t tick) {
+    test_task_t *task = arg;
+    (void)tick;
+    return task->test->body(task->self, task->ctx);
+}
+
+static plc_image_t image;    /* direct I/O: the image is plain memory */
+
 static void arm_timer(long seconds) {
     struct itimerval it;
     memset(&it, 0, sizeof it);
@@ -78,6 +99,18 @@ static void run_test(uint32_t index, long timeout) {
     }
     plc_program.init();
     t->init(self);
+    plc_scan_t core;
+    char err[256];
+    memset(&image, 0, sizeof image);
+    if (plc_scan_bind(&core, &plc_program, &image, NULL, NULL, err, sizeof err) != 0) {
+        printf("FAULT 0 %s\t0\t0\t?\nEND %u FAULT 0 0 0 0\n", err, index);
+        free(self);
+        free(ctx);
+        return;
+    }
+    test_task_t task = { t, self, ctx };
+    core.run = run_test_body;
+    core.run_ctx = &task;
     FIELD(ctx, cycle_time, int64_t) = 4000000;   /* T#4ms */
     FIELD(ctx, budget, uint32_t) = 100000;
     printed_failures = 0;
@@ -97,8 +130,7 @@ static void run_test(uint32_t index, long timeout) {
         scan++;
         FIELD(ctx, scan, uint32_t) = scan;
         FIELD(ctx, now, int64_t) = clock;
-        *plc_program.clock_ns = clock;
-        int rc = t->body(self, ctx);
+        int rc = plc_scan_step(&core, clock);
         if (rc != 0) {
             const plc_fault_t *f = plc_program.fault;
             printf("FAULT %d %s\t%d\t%d\t%s\n", rc, f->file ? f->file : "?", (int)f->line, (int)f->col,
@@ -122,6 +154,7 @@ static void run_test(uint32_t index, long timeout) {
     if (strcmp(status, "PASS") == 0 && failures > 0) status = "FAIL";
     printf("END %u %s %u %lld %u %u\n", index, status, scan, (long long)clock, FIELD(ctx, asserts, uint32_t), failures);
     fflush(stdout);
+    plc_scan_free(&core);
     free(self);
     free(ctx);
 }

@@ -46,7 +46,10 @@ typedef struct plc_string {
 /*
  * A located variable (`x AT %QW3 : INT`).  The generated code holds a pointer
  * per located variable; init() points it at private storage so an unbound
- * program still runs.  A host rebinds it by writing *ptr (after init()).
+ * program still runs.  Hosts copy between that storage and their I/O image at
+ * the scan's edges (the scan core, native/runtime/scan_core.h); a host may
+ * also point *ptr elsewhere after init() (the core does, for PROGRAMs that
+ * share an address).
  * area: 'I', 'Q' or 'M'; size: 'X' (bit), 'B', 'W', 'D' or 'L'.
  * For 'X' index is the byte and bit the bit (0..7); otherwise index is the
  * element number in units of the size (%QW3 -> 3, %MD2 -> 2).

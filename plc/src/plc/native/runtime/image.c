@@ -1,17 +1,22 @@
 /*
  * image.c - the I/O image and OpenPLC's address map.
  *
- * Two images: the program image (prog_image_t), which the located variables
- * of the program point into and which only the scan thread touches, and the
- * Modbus image (bus_image_t), which the server reads and writes under
- * runtime_t.lock.  They meet only at scan boundaries:
+ * Two images: the program image (prog_image_t, scan_core.h), into and out of
+ * which the scan core copies the program's located variables and which only
+ * the scan thread touches, and the Modbus image (bus_image_t), which the
+ * server reads and writes under runtime_t.lock.  They meet only at scan
+ * boundaries:
  *
  *   scan start  image_take_host_writes(): host writes queued since the last
  *               scan are copied into the program image, whole requests at a
  *               time (a request is applied entirely before a scan or after).
- *   scan end    image_publish(): the program image is copied to the Modbus
- *               image, then writes that arrived during the scan are laid back
- *               on top, so a client reads back what it wrote.
+ *   scan end    image_publish(): the program image's bits and input words
+ *               and the program's own holding registers (its located %QW %MW
+ *               %MD %ML) are copied to the Modbus image, then writes that
+ *               arrived during the scan are laid back on top, so a client
+ *               reads back what it wrote.  Other holding registers change
+ *               only by host writes, which the Modbus image already holds
+ *               (image_publish_all() copies everything, at start-up).
  *
  * A read therefore always sees the outputs of one complete scan.
  */
@@ -64,108 +69,17 @@ bad:
 
 /* -------------------------------------------------------------- binding */
 
-static unsigned type_size(unsigned type)
+static void log_unmapped(void *ctx, const plc_located_t *l, const char *why)
 {
-    switch (type) {
-    case PLC_T_BOOL: case PLC_T_SINT: case PLC_T_USINT: case PLC_T_BYTE:
-        return 1;
-    case PLC_T_INT: case PLC_T_UINT: case PLC_T_WORD:
-        return 2;
-    case PLC_T_DINT: case PLC_T_UDINT: case PLC_T_DWORD: case PLC_T_REAL: case PLC_T_ENUM:
-        return 4;
-    case PLC_T_LINT: case PLC_T_ULINT: case PLC_T_LWORD: case PLC_T_LREAL:
-    case PLC_T_TIME: case PLC_T_DATE: case PLC_T_TOD: case PLC_T_DT:
-        return 8;
-    default:
-        return 0;
-    }
-}
+    runtime_t *rt = ctx;
 
-/* Where a located variable lives in the program image, or NULL when the
- * address is not on OpenPLC's Modbus map (the variable then keeps the private
- * storage that init() gave it).  *why explains a NULL. */
-static void *slot_for(prog_image_t *p, const plc_located_t *l, const char **why)
-{
-    unsigned n = l->index;
-
-    *why = NULL;
-    if (l->size == 'X') {
-        if ((l->area != 'I' && l->area != 'Q') || n >= MAP_BITS / 8 || l->bit > 7) {
-            *why = "bit outside %IX0.0-%IX99.7 / %QX0.0-%QX99.7";
-            return NULL;
-        }
-        return l->area == 'I' ? &p->ix[n * 8 + l->bit] : &p->qx[n * 8 + l->bit];
-    }
-    if (n >= MAP_WORDS) {
-        *why = "index above 1023";
-        return NULL;
-    }
-    switch (l->size) {
-    case 'W':
-        if (l->area == 'I')
-            return &p->iw[n];
-        if (l->area == 'Q')
-            return &p->qw[n];
-        return &p->mw[n];
-    case 'D':
-        if (l->area == 'M')
-            return &p->md[n];
-        break;
-    case 'L':
-        if (l->area == 'M')
-            return &p->ml[n];
-        break;
-    default:
-        break;
-    }
-    *why = "OpenPLC maps only %IX %QX %IW %QW %MW %MD %ML to Modbus";
-    return NULL;
-}
-
-static unsigned size_bytes(char size)
-{
-    switch (size) {
-    case 'X': case 'B': return 1;
-    case 'W': return 2;
-    case 'D': return 4;
-    case 'L': return 8;
-    default: return 0;
-    }
+    log_msg(rt->log, LOG_WARN, "%s at %s is not on the Modbus map (%s); it stays inside the program",
+            l->var, l->address, why);
 }
 
 int image_bind_program(runtime_t *rt, char *err, size_t errlen)
 {
-    const plc_program_t *prog = rt->prog;
-
-    for (uint32_t i = 0; i < prog->n_located; i++) {
-        const plc_located_t *l = &prog->located[i];
-        unsigned want = size_bytes(l->size);
-        unsigned have = type_size(l->type);
-        const char *why;
-        void *slot;
-
-        if (want == 0 || (l->area != 'I' && l->area != 'Q' && l->area != 'M') || l->ptr == NULL) {
-            snprintf(err, errlen, "located variable %s at %s: malformed entry (area %c, size %c)",
-                     l->var, l->address, l->area ? l->area : '?', l->size ? l->size : '?');
-            return -1;
-        }
-        if (have != want || (l->size == 'X' && l->type != PLC_T_BOOL)) {
-            snprintf(err, errlen, "located variable %s at %s: its type takes %u bytes, the address %u",
-                     l->var, l->address, have, want);
-            return -1;
-        }
-        slot = slot_for(&rt->pimg, l, &why);
-        if (slot == NULL) {
-            log_msg(rt->log, LOG_WARN, "%s at %s is not on the Modbus map (%s); it stays inside the program",
-                    l->var, l->address, why);
-            continue;
-        }
-        /* Keep the initial value that init() stored in the private slot. */
-        if (*l->ptr != NULL)
-            memcpy(slot, *l->ptr, want);
-        *l->ptr = slot;
-    }
-    return 0;
+    return plc_scan_bind(&rt->core, rt->prog, &rt->pimg, log_unmapped, rt, err, errlen);
 }
 
 /* ------------------------------------------------------- register codec */
@@ -237,7 +151,47 @@ void image_take_host_writes(runtime_t *rt)
     b->any_dirty = false;
 }
 
-void image_publish(runtime_t *rt)
+/* The holding registers of %MDn and %MLn, high word first. */
+static void put_md(bus_image_t *b, unsigned i, uint32_t d)
+{
+    uint16_t *r = &b->holding[MAP_HOLD_MD + 2 * i];
+
+    r[0] = (uint16_t)(d >> 16);
+    r[1] = (uint16_t)d;
+}
+
+static void put_ml(bus_image_t *b, unsigned i, uint64_t l)
+{
+    uint16_t *r = &b->holding[MAP_HOLD_ML + 4 * i];
+
+    r[0] = (uint16_t)(l >> 48);
+    r[1] = (uint16_t)(l >> 32);
+    r[2] = (uint16_t)(l >> 16);
+    r[3] = (uint16_t)l;
+}
+
+/* Writes that arrived during this scan stay visible until applied. */
+static void overlay_pending(bus_image_t *b)
+{
+    for (unsigned w = 0; w < MAP_BITS / 64 + 1; w++) {
+        uint64_t bits = b->dirty_coils.bits[w];
+        while (bits) {
+            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
+            bits &= bits - 1;
+            b->coils[a] = b->pending_coils[a];
+        }
+    }
+    for (unsigned w = 0; w < MAP_HOLDING / 64; w++) {
+        uint64_t bits = b->dirty_holding.bits[w];
+        while (bits) {
+            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
+            bits &= bits - 1;
+            b->holding[a] = b->pending_holding[a];
+        }
+    }
+}
+
+void image_publish_all(runtime_t *rt)
 {
     bus_image_t *b = &rt->bimg;
     const prog_image_t *p = &rt->pimg;
@@ -248,31 +202,41 @@ void image_publish(runtime_t *rt)
     memcpy(&b->holding[MAP_HOLD_QW], p->qw, sizeof p->qw);
     memcpy(&b->holding[MAP_HOLD_MW], p->mw, sizeof p->mw);
     for (unsigned i = 0; i < MAP_WORDS; i++) {
-        uint32_t d = p->md[i].u;
-        uint64_t l = p->ml[i].u;
-        uint16_t *r = &b->holding[MAP_HOLD_MD + 2 * i];
-        r[0] = (uint16_t)(d >> 16);
-        r[1] = (uint16_t)d;
-        r = &b->holding[MAP_HOLD_ML + 4 * i];
-        r[0] = (uint16_t)(l >> 48);
-        r[1] = (uint16_t)(l >> 32);
-        r[2] = (uint16_t)(l >> 16);
-        r[3] = (uint16_t)l;
+        put_md(b, i, p->md[i].u);
+        put_ml(b, i, p->ml[i].u);
     }
-    if (!b->any_dirty)
-        return;
-    /* Writes that arrived during this scan stay visible until applied. */
-    for (unsigned a = 0; a < MAP_BITS; a++)
-        if (addr_set_has(&b->dirty_coils, a))
-            b->coils[a] = b->pending_coils[a];
-    for (unsigned w = 0; w < MAP_HOLDING / 64; w++) {
-        uint64_t bits = b->dirty_holding.bits[w];
-        while (bits) {
-            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
-            bits &= bits - 1;
-            b->holding[a] = b->pending_holding[a];
-        }
+    if (b->any_dirty)
+        overlay_pending(b);
+}
+
+void image_publish(runtime_t *rt)
+{
+    bus_image_t *b = &rt->bimg;
+    const prog_image_t *p = &rt->pimg;
+    const plc_scan_t *core = &rt->core;
+
+    /* Bits and input words: the I/O layer may change any of them. */
+    memcpy(b->coils, p->qx, MAP_BITS);
+    memcpy(b->discrete, p->ix, MAP_BITS);
+    memcpy(b->input_regs, p->iw, sizeof p->iw);
+    /* Holding registers: only the program's; the others change only by host
+     * writes, which the Modbus image already holds.  Where a binding's slot
+     * lies in the image says which register it is. */
+    for (uint32_t i = core->n_inputs; i < core->n_bindings; i++) {
+        const char *slot = core->bindings[i].slot;
+
+        if (slot >= (const char *)p->qw && slot < (const char *)(p->qw + MAP_WORDS))
+            b->holding[MAP_HOLD_QW + (size_t)((const uint16_t *)slot - p->qw)] = *(const uint16_t *)slot;
+        else if (slot >= (const char *)p->mw && slot < (const char *)(p->mw + MAP_WORDS))
+            b->holding[MAP_HOLD_MW + (size_t)((const uint16_t *)slot - p->mw)] = *(const uint16_t *)slot;
+        else if (slot >= (const char *)p->md && slot < (const char *)(p->md + MAP_WORDS))
+            put_md(b, (unsigned)((const plc_slot32_t *)slot - p->md), ((const plc_slot32_t *)slot)->u);
+        else if (slot >= (const char *)p->ml && slot < (const char *)(p->ml + MAP_WORDS))
+            put_ml(b, (unsigned)((const plc_slot64_t *)slot - p->ml), ((const plc_slot64_t *)slot)->u);
+        /* else a coil: copied above */
     }
+    if (b->any_dirty)
+        overlay_pending(b);
 }
 
 void image_make_outputs_safe(prog_image_t *p)

@@ -396,7 +396,7 @@ int main(int argc, char **argv)
         goto out_io;
 
     pthread_mutex_lock(&rt.lock);
-    image_publish(&rt);
+    image_publish_all(&rt);
     pthread_mutex_unlock(&rt.lock);
 
     if (modbus_server_start(&rt, &rt.server) != 0)

@@ -4,9 +4,12 @@
  * One runtime struct (runtime_t) is built by main.c and passed explicitly to
  * every part; nothing below keeps state in globals.  The parts and their jobs:
  *
+ *   scan_core.c      the one scan core shared with `plc test` and the test
+ *                    driver: input latch, forced values, tasks, publication
  *   image.c          the two I/O images (program side and Modbus side), the
  *                    OpenPLC address map, host writes applied between scans
- *   scan.c           the periodic scan loop, its clock and its statistics
+ *   scan.c           the periodic scan loop around the core, its clock and
+ *                    its statistics
  *   modbus_server.c  Modbus/TCP server thread on libmodbus
  *   retain.c         RETAIN variables saved atomically and restored at start
  *   io_sim.c/io_none.c  the physical side of the image, behind io_layer_t
@@ -15,8 +18,10 @@
  *   log.c            log lines and the live status line
  *   main.c           options, start-up and orderly shutdown
  *
- * Data flow of one scan:  io inputs -> program image <- host writes (queued)
- *   -> run(tick) -> program image -> Modbus image (published) -> io outputs.
+ * Data flow of one scan (scan_core.h):  io inputs -> program image <- host
+ *   writes (queued) -> located variables latched -> forced values -> run(tick)
+ *   -> located %Q/%M variables -> program image -> Modbus image (published)
+ *   -> io outputs.
  */
 #ifndef PLC_RUNTIME_H
 #define PLC_RUNTIME_H
@@ -29,6 +34,7 @@
 #include <stdio.h>
 
 #include "plc_abi.h"
+#include "scan_core.h"
 
 #define RT_NAME "plc-runtime"
 #define RT_VERSION "0.1.0"
@@ -36,8 +42,8 @@
 /* ------------------------------------------------------------ address map */
 
 /* OpenPLC's address map (SPEC section 6). */
-#define MAP_BITS        800u    /* %IX0.0..%IX99.7, %QX0.0..%QX99.7 */
-#define MAP_WORDS       1024u   /* %IW, %QW, %MW, %MD, %ML: 1024 each */
+#define MAP_BITS        PLC_MAP_BITS    /* %IX0.0..%IX99.7, %QX0.0..%QX99.7 */
+#define MAP_WORDS       PLC_MAP_WORDS   /* %IW, %QW, %MW, %MD, %ML: 1024 each */
 #define MAP_HOLD_QW     0u      /* holding registers of %QW0.. */
 #define MAP_HOLD_MW     1024u   /* holding registers of %MW0.. */
 #define MAP_HOLD_MD     2048u   /* %MDn at 2048+2n (high word first) */
@@ -128,21 +134,9 @@ int addr_set_parse(addr_set_t *s, const char *text, unsigned limit, char *err, s
 
 /* -------------------------------------------------------------- images */
 
-/* 32- and 64-bit memory slots: the program may store DINT, REAL, LINT, LREAL... */
-typedef union { uint32_t u; int32_t i; float f; } slot32_t;
-typedef union { uint64_t u; int64_t i; double f; } slot64_t;
-
-/* The program's view: located variables point into this, only the scan
- * thread touches it. */
-typedef struct prog_image {
-    plc_bool_t ix[MAP_BITS];
-    plc_bool_t qx[MAP_BITS];
-    uint16_t iw[MAP_WORDS];
-    uint16_t qw[MAP_WORDS];
-    uint16_t mw[MAP_WORDS];
-    slot32_t md[MAP_WORDS];
-    slot64_t ml[MAP_WORDS];
-} prog_image_t;
+/* The program's I/O image (scan_core.h): the core copies the located
+ * variables in and out of it; only the scan thread touches it. */
+typedef plc_image_t prog_image_t;
 
 /* The Modbus view, guarded by runtime_t.lock.  `pending_*` hold host writes
  * not yet applied to the program; `dirty_*` say which. */
@@ -235,7 +229,9 @@ void hist_add(histogram_t *h, uint64_t ns);
 uint64_t hist_percentile(const histogram_t *h, double p);
 
 typedef struct scan_stats {
-    histogram_t scan;              /* execution time of a scan */
+    histogram_t scan;              /* execution time of a scan: input latch to the end of its work */
+    histogram_t core;              /* of which the scan core: input latch to output publication */
+    histogram_t run;               /* of which the program itself: the run() call */
     histogram_t wake;              /* wake-up latency after the deadline */
     uint64_t scans;
     uint32_t overruns;
@@ -257,6 +253,7 @@ typedef struct runtime {
     uint64_t period_ns;
 
     prog_image_t pimg;             /* scan thread only */
+    plc_scan_t core;               /* the scan core bound to prog and pimg */
 
     pthread_mutex_t lock;          /* guards bimg */
     bus_image_t bimg;
@@ -269,6 +266,8 @@ typedef struct runtime {
     watchdog_t *watchdog;
     notifier_t *notify;            /* NULL when no service manager listens */
     pthread_t scan_thread;
+    uint64_t started_ns;           /* when the scan loop started (monotonic) */
+    uint64_t refresh_every;        /* scans between two refreshes of the percentiles */
     _Atomic uint64_t run_started_ns;   /* when the current run() call began, 0 outside run() */
     atomic_bool watchdog_tripped;
 
@@ -283,6 +282,7 @@ typedef struct runtime {
 int image_bind_program(runtime_t *rt, char *err, size_t errlen);
 void image_take_host_writes(runtime_t *rt);          /* caller holds rt->lock */
 void image_publish(runtime_t *rt);                   /* caller holds rt->lock */
+void image_publish_all(runtime_t *rt);               /* the whole image (start-up); caller holds rt->lock */
 /* Safe state: every coil (%QX) FALSE.  %QW keep their last values in the image
  * (status words the host still needs, e.g. the tool in the spindle); the I/O
  * layer gets all-zero outputs, coils and words, while the program is stopped. */

@@ -215,12 +215,15 @@ static void log_summary(runtime_t *rt)
     log_msg(rt->log, LOG_INFO,
             "stats scans=%" PRIu64 " overruns=%u skipped=%u period_us=%.1f"
             " scan_us_p50=%.1f scan_us_p99=%.1f scan_us_max=%.1f scan_us_mean=%.1f"
-            " wake_us_p50=%.1f wake_us_p99=%.1f wake_us_max=%.1f wake_us_mean=%.1f",
+            " wake_us_p50=%.1f wake_us_p99=%.1f wake_us_max=%.1f wake_us_mean=%.1f"
+            " core_us_p50=%.2f core_us_p99=%.2f run_us_p50=%.2f run_us_p99=%.2f",
             s->scans, s->overruns, s->skipped, rt->period_ns / 1e3,
             s->p50_scan_ns / 1e3, s->p99_scan_ns / 1e3, s->scan.max_ns / 1e3,
             s->scan.n ? (double)s->scan.sum_ns / (double)s->scan.n / 1e3 : 0.0,
             s->p50_wake_ns / 1e3, s->p99_wake_ns / 1e3, s->wake.max_ns / 1e3,
-            s->wake.n ? (double)s->wake.sum_ns / (double)s->wake.n / 1e3 : 0.0);
+            s->wake.n ? (double)s->wake.sum_ns / (double)s->wake.n / 1e3 : 0.0,
+            hist_percentile(&s->core, 0.50) / 1e3, hist_percentile(&s->core, 0.99) / 1e3,
+            hist_percentile(&s->run, 0.50) / 1e3, hist_percentile(&s->run, 0.99) / 1e3);
 }
 
 /* ------------------------------------------------------------- the loop */
@@ -245,20 +248,82 @@ static int stop_signal(const sigset_t *stop)
 /* What the I/O layer gets for %QW while the program is stopped. */
 static const uint16_t no_words[MAP_WORDS];
 
+/* ------------------------------------------------- the core's connections */
+
+/* Input latch, the world's side: the I/O layer's inputs, then the host writes
+ * queued since the last scan, in that order. */
+static int rt_read_inputs(void *ctx, plc_image_t *image)
+{
+    runtime_t *rt = ctx;
+    bool host_wrote;
+
+    pthread_mutex_lock(&rt->io_lock);
+    rt->opt.io->read_inputs(rt->io_state, image->ix, image->iw);
+    pthread_mutex_unlock(&rt->io_lock);
+    pthread_mutex_lock(&rt->lock);
+    host_wrote = rt->bimg.any_dirty;
+    image_take_host_writes(rt);
+    pthread_mutex_unlock(&rt->lock);
+    return host_wrote;
+}
+
+/* Tasks due: run() under the watchdog's eye, timed for the statistics. */
+static int rt_run_tasks(void *ctx, uint64_t tick)
+{
+    runtime_t *rt = ctx;
+    const uint64_t t0 = now_ns();
+
+    atomic_store(&rt->run_started_ns, t0);
+    int rc = rt->prog->run(tick);
+    atomic_store(&rt->run_started_ns, 0);
+    hist_add(&rt->stats.run, now_ns() - t0);
+    if (atomic_load(&rt->watchdog_tripped))
+        rc = RT_FAULT_WATCHDOG;
+    if (rc != 0)
+        enter_fault(rt, rc, tick);
+    return rc;
+}
+
+/* Output publication, the world's side: the Modbus image (with the
+ * diagnostic block of this scan), then the I/O layer. */
+static void rt_write_outputs(void *ctx, plc_image_t *image, int running)
+{
+    runtime_t *rt = ctx;
+    scan_stats_t *s = &rt->stats;
+
+    s->scans++;
+    if (s->scans % rt->refresh_every == 0)
+        refresh_percentiles(s);
+    pthread_mutex_lock(&rt->lock);
+    image_publish(rt);
+    publish_diag(rt, rt->started_ns);
+    pthread_mutex_unlock(&rt->lock);
+
+    pthread_mutex_lock(&rt->io_lock);
+    rt->opt.io->write_outputs(rt->io_state, image->qx, running ? image->qw : no_words);
+    pthread_mutex_unlock(&rt->io_lock);
+}
+
 int scan_run(runtime_t *rt)
 {
     const plc_program_t *prog = rt->prog;
     const uint64_t period = rt->period_ns;
-    const uint64_t refresh_every = period >= 100000000u ? 1 : 100000000u / period;
     const uint64_t started = now_ns();
     uint64_t deadline = started;          /* the first scan runs at once */
-    uint64_t tick = 0;
     sigset_t stop;
     int sig = 0;
 
     sigemptyset(&stop);
     sigaddset(&stop, SIGINT);
     sigaddset(&stop, SIGTERM);
+
+    rt->started_ns = started;
+    rt->refresh_every = period >= 100000000u ? 1 : 100000000u / period;
+    rt->core.io = (plc_scan_io_t){ .ctx = rt, .read_inputs = rt_read_inputs, .write_outputs = rt_write_outputs };
+    rt->core.run = rt_run_tasks;
+    rt->core.run_ctx = rt;
+    /* Forcing and monitoring (the HMI) plug into rt->core.hooks: after_inputs (forced inputs),
+     * before_outputs (forced outputs) and scan_done (snapshot); all NULL until then. */
 
     rt->state = PLC_STATE_RUNNING;
     pthread_mutex_lock(&rt->lock);
@@ -280,40 +345,13 @@ int scan_run(runtime_t *rt)
 
         hist_add(&s->wake, woke - deadline);
 
-        /* Inputs latched, host writes applied, in that order. */
-        pthread_mutex_lock(&rt->io_lock);
-        rt->opt.io->read_inputs(rt->io_state, rt->pimg.ix, rt->pimg.iw);
-        pthread_mutex_unlock(&rt->io_lock);
-        pthread_mutex_lock(&rt->lock);
-        image_take_host_writes(rt);
-        pthread_mutex_unlock(&rt->lock);
+        /* The scan proper starts here, after the loop's own housekeeping (signals, run time). */
+        const uint64_t begun = now_ns();
+        /* The program's clock is virtual: tick t runs at t base ticks. */
+        plc_scan_step(&rt->core, (int64_t)(rt->core.tick * prog->base_tick_ns));
+        const uint64_t scanned = now_ns();
+        hist_add(&s->core, scanned - begun);
 
-        if (rt->state == PLC_STATE_RUNNING) {
-            *prog->clock_ns = (int64_t)(tick * prog->base_tick_ns);
-            atomic_store(&rt->run_started_ns, now_ns());
-            int rc = prog->run(tick);
-            atomic_store(&rt->run_started_ns, 0);
-            if (atomic_load(&rt->watchdog_tripped))
-                enter_fault(rt, RT_FAULT_WATCHDOG, tick);
-            else if (rc != 0)
-                enter_fault(rt, rc, tick);
-        }
-        if (rt->state != PLC_STATE_RUNNING)
-            image_make_outputs_safe(&rt->pimg);
-        tick++;
-        s->scans++;
-        if (s->scans % refresh_every == 0)
-            refresh_percentiles(s);
-
-        pthread_mutex_lock(&rt->lock);
-        image_publish(rt);
-        publish_diag(rt, started);
-        pthread_mutex_unlock(&rt->lock);
-
-        pthread_mutex_lock(&rt->io_lock);
-        rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx,
-                                  rt->state == PLC_STATE_RUNNING ? rt->pimg.qw : no_words);
-        pthread_mutex_unlock(&rt->io_lock);
         if (rt->state == PLC_STATE_RUNNING)
             retain_after_scan(rt, woke);
 
@@ -321,7 +359,7 @@ int scan_run(runtime_t *rt)
         if (s->scans == 1)      /* upgrades measure the switch-over up to this line (monotonic clock) */
             log_msg(rt->log, LOG_INFO, "first scan done at monotonic %.6f s", done / 1e9);
         notify_after_scan(rt->notify, rt, done);
-        hist_add(&s->scan, done - woke);
+        hist_add(&s->scan, done - begun);
         deadline += period;
         if (done > deadline) {
             s->overruns++;
