@@ -64,12 +64,13 @@ def test_scan_statistics_are_published_in_the_diagnostic_block(binary):
     # however loaded it is: scans advance, never more than one per 4 ms tick, and the figures are consistent
     with h.Runtime(binary, "--no-rt") as rt, h.Client(rt.port) as c:
         first = h.read_diag(c)
-        t0 = time.monotonic()
-        h.wait_until(lambda: h.read_diag(c)["scans"] >= first["scans"] + 50, 5, "50 more scans")
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= first["scans"] + 50, 5 * h.SLOW, "50 more scans")
         d = h.read_diag(c)
-        elapsed = time.monotonic() - t0
         assert d["state"] == h.STATE_RUNNING and d["base_tick_us"] == 4000
-        assert d["scans"] - first["scans"] <= elapsed / 0.004 + 2
+        # at most one scan per tick, judged on the runtime's own clock (a reader's clock sees the counters late
+        # by however long the machine made it wait): every tick since start is a scan or a skipped tick
+        ticks_per_s = 1_000_000 // d["base_tick_us"]
+        assert d["scans"] + d["skipped"] <= (d["uptime_s"] + 1) * ticks_per_s + 1
         assert d["scan_min_us"] <= d["scan_mean_us"] <= d["scan_max_us"]
         assert d["scan_p50_us"] <= d["scan_p99_us"] <= d["scan_max_us"]
         assert d["wake_min_us"] <= d["wake_mean_us"] <= d["wake_max_us"]
