@@ -15,6 +15,7 @@ Transports: TCP on loopback (port 0: a free port) or RTU on a serial device (one
 from __future__ import annotations
 
 import asyncio
+import logging
 import threading
 import time
 from dataclasses import dataclass, field
@@ -23,6 +24,9 @@ from pymodbus.datastore import ModbusServerContext
 from pymodbus.datastore.context import ModbusBaseSlaveContext
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+
+# pymodbus logs every exception response it sends as an error: the fault modes send thousands on purpose
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 DI_COUNT = 32          # the module's discrete inputs 0..31
 COIL_COUNT = 8         # its coils 0..7

@@ -573,6 +573,10 @@ static void set_state(io_device_t *d, io_device_state_t s, uint64_t now, uint64_
     if (old == s)
         return;
     atomic_store(&d->state, (int)s);
+    /* The host sees the new state at once (the poll thread may be waiting out a back-off). */
+    pthread_mutex_lock(&d->rt->lock);
+    d->rt->bimg.input_regs[IO_DIAG_BASE + d->index * IO_DIAG_WORDS + IO_DIAG_STATE] = (uint16_t)s;
+    pthread_mutex_unlock(&d->rt->lock);
     if (s == IO_DEVICE_LOST)
         log_msg(d->rt->log, LOG_ERROR, "I/O device %u (%s): lost: no complete input for %.1f ms (limit %u ms); "
                 "status input TRUE, inputs 0, outputs safe at monotonic %.6f s",
