@@ -29,7 +29,7 @@ import pytest
 pytest.importorskip("pymodbus", reason="pymodbus is a test dependency (pip install -e 'plc[test]')")
 
 from io_module import COIL_COUNT, DI_COUNT, IoModule, Mechanics, Wiring  # noqa: E402
-from rt_harness import SLOW  # noqa: E402
+from rt_harness import SANITIZE, SANITIZER_ENV, SLOW  # noqa: E402
 
 from plc.host.modbus import ModbusClient  # noqa: E402
 from plc.host.tags import Tags, load_map  # noqa: E402
@@ -137,9 +137,10 @@ class Plc:
     def start(self) -> None:
         cmd = [sys.executable, "-m", "plc.cli", "run", str(self.sources), "--config", str(self.config),
                "--io", "modbus", "--port", str(self.port), "--retain", str(self.tmp / "plc.retain"),
-               "--build-dir", str(REPO / "build" / "runtime")]
+               "--build-dir", str(REPO / "build" / "runtime")] + (["--sanitize"] if SANITIZE else [])
         with open(self.log, "ab") as log:
-            self.proc = subprocess.Popen(cmd, cwd=REPO / "plc", stdout=log, stderr=subprocess.STDOUT)
+            self.proc = subprocess.Popen(cmd, cwd=REPO / "plc", stdout=log, stderr=subprocess.STDOUT,
+                                         env={**os.environ, **(SANITIZER_ENV if SANITIZE else {})})
         wait_for(lambda: f"listening on 127.0.0.1:{self.port}" in self.text(), 180 * SLOW,
                  "plc run listening", lambda: self.proc.poll() is None)
 
@@ -154,6 +155,8 @@ class Plc:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
+            # a clean stop (sanitizer builds: no leak, no undefined behaviour) exits 0
+            assert self.proc.returncode == 0, f"plc run exited {self.proc.returncode}:\n{self.text()[-3000:]}"
 
     def host(self, *words: str) -> subprocess.CompletedProcess:
         cmd = [sys.executable, "-m", "plc.cli", "host", "--port", str(self.port), *words]
@@ -179,8 +182,9 @@ def wait_for(cond, timeout: float, what: str, alive=lambda: True) -> None:
     raise AssertionError(f"{what}: not within {timeout:.0f} s")
 
 
-def ok(result: subprocess.CompletedProcess) -> str:
-    assert result.returncode == 0, f"exit {result.returncode}\n{result.stdout}\n{result.stderr}"
+def ok(result: subprocess.CompletedProcess, plc: "Plc | None" = None) -> str:
+    log = "\n".join(line for line in plc.text().splitlines() if "I/O device" in line)[-3000:] if plc else ""
+    assert result.returncode == 0, f"exit {result.returncode}\n{result.stdout}\n{result.stderr}\n{log}"
     return result.stdout
 
 
@@ -227,9 +231,11 @@ def make_rig(tmp: Path, transport: str, machine_file: str, **device) -> Rig:
         module = IoModule(wiring_for(machine), mechanics_for(machine)).start()
         link = {"tcp": "127.0.0.1", "port": module.port}
     status = SIGNALS["IoModule1Lost"]["address"]
-    # The age limit is far above any scheduling delay of a loaded test machine: a verdict never depends on speed.
-    settings = {"name": "changer", **link, "unit": 1, "poll_ms": 5, "timeout_ms": 100, "max_age_ms": 400,
-                "backoff_ms": [50, 400], "status_input": f"%IX{status // 8}.{status % 8}", **device}
+    # The age limit and the response time-out are far above any stall of a loaded test machine (the module is
+    # Python, at normal priority), so a verdict does not depend on speed; the age limit stays below the
+    # positioner's pocket time-out (10 s), so a silent module is reported as lost, not as a carousel error.
+    settings = {"name": "changer", **link, "unit": 1, "poll_ms": 5, "timeout_ms": int(min(250 * SLOW, 1000)),
+                "max_age_ms": int(min(1000 * SLOW, 3000)), "backoff_ms": [50, 400], "status_input": f"%IX{status // 8}.{status % 8}", **device}
     plc = Plc(tmp, run_config(tmp / "run.toml", settings), sources_for(machine_file, tmp))
     try:
         plc.start()
@@ -250,9 +256,9 @@ def test_tool_changes_complete_over_modbus(tmp_path, transport, machine_file):
     try:
         values = rig.plc.read("SimulatedPlant", "IoModule1Lost")
         assert values == {"SimulatedPlant": False, "IoModule1Lost": False}, rig.plc.text()[-2000:]
-        first = ok(rig.plc.host("clear", "T2 M6"))
+        first = ok(rig.plc.host("clear", "T2 M6"), rig.plc)
         assert first.splitlines()[-1] == "tool 2 in spindle", first
-        second = ok(rig.plc.host("T4 M6"))
+        second = ok(rig.plc.host("T4 M6"), rig.plc)
         assert second.splitlines()[-1] == "tool 4 in spindle", second
         assert rig.plc.read("ToolInSpindle", "FaultReason") == {"ToolInSpindle": 4, "FaultReason": 0}
         # the module's own machine really moved, and no mechanical mistake happened on it
@@ -279,19 +285,19 @@ def recover(rig: Rig) -> None:
     """Module answering, fault cleared, and what an interrupted change left to do done (home, confirm)."""
     rig.module.set_mode("normal")
     wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
-    ok(rig.plc.host("clear"))
+    ok(rig.plc.host("clear"), rig.plc)
     state = rig.plc.read("Recovery", "UncertainTool", "FaultReason")
     assert state["FaultReason"] == 0, state
-    if state["Recovery"] & 1:
-        ok(rig.plc.host("home"))
-    if state["Recovery"] & 2:
-        ok(rig.plc.host("confirm", str(state["UncertainTool"])))
+    # one `plc host` call: its heartbeat runs before the changer gets busy (a gap between calls is a lost host)
+    todo = ["clear"] + (["home"] if state["Recovery"] & 1 else []) \
+        + (["confirm", str(state["UncertainTool"])] if state["Recovery"] & 2 else [])
+    ok(rig.plc.host(*todo), rig.plc)
     assert rig.plc.read("Recovery", "FaultReason") == {"Recovery": 0, "FaultReason": 0}
 
 
 def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(tcp_rig):
     rig = tcp_rig
-    ok(rig.plc.host("clear", "T1 M6"))
+    ok(rig.plc.host("clear", "T1 M6"), rig.plc)
     motor = rig.module.machine.wiring.motor_on
     result: dict = {}
     host = threading.Thread(target=lambda: result.update(r=rig.plc.host("T5 M6")))
@@ -310,7 +316,7 @@ def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(tcp_rig
     safe_at = float(m.group(1))
     assert safe_at >= silent_at - 0.001
     print(f"comm loss -> outputs safe: {1000 * (safe_at - silent_at):.1f} ms after the module went silent "
-          f"(age limit 400 ms in this test; scripts/bench-io-modbus measures it at 5 ms polls)")
+          f"(a generous age limit in this test; scripts/bench-io-modbus measures it at 5 ms polls)")
 
     # The module answers again: the first outputs it receives are safe, and stay so until the fault is cleared.
     resumed = rig.module.set_mode("normal")
@@ -321,7 +327,7 @@ def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(tcp_rig
     assert all(not e[2][motor] for e in after), after
     assert not rig.module.coil("motor_on")
     assert rig.plc.read("FaultReason")["FaultReason"] == REASON_MODULE_1_LOST, "the fault stays until cleared"
-    ok(rig.plc.host("clear"))
+    ok(rig.plc.host("clear"), rig.plc)
     assert rig.plc.read("FaultReason")["FaultReason"] == 0
 
 
@@ -331,7 +337,7 @@ def test_a_slow_module_still_completes_a_change(tcp_rig):
     losses = rig.plc.text().count("): lost:")
     rig.module.set_mode("slow", 0.015)          # three poll periods per answer, within the response time-out
     try:
-        out = ok(rig.plc.host("T3 M6"))
+        out = ok(rig.plc.host("T3 M6"), rig.plc)
         assert out.splitlines()[-1] == "tool 3 in spindle", out
         assert rig.plc.device_diag()[DIAG_STATE] == STATE_OK
         assert rig.plc.text().count("): lost:") == losses, "the slow module was never declared lost"
@@ -344,6 +350,7 @@ def test_a_slow_module_still_completes_a_change(tcp_rig):
 def test_exceptions_or_garbage_are_counted_and_lost_after_the_age_limit(tcp_rig, mode, counter):
     rig = tcp_rig
     recover(rig)
+    lines = rig.plc.text().count("): lost:")
     before = rig.plc.device_diag()[counter]
     rig.module.set_mode(mode)
     wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is True, 30 * SLOW, f"lost after {mode}")
@@ -355,4 +362,4 @@ def test_exceptions_or_garbage_are_counted_and_lost_after_the_age_limit(tcp_rig,
     recover(rig)
     assert rig.plc.device_diag()[DIAG_STATE] == STATE_OK
     # one log line per state change, not one per failed transaction
-    assert rig.plc.text().count("lost: no complete input") <= 3
+    assert rig.plc.text().count("): lost:") == lines + 1

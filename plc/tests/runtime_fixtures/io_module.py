@@ -229,7 +229,7 @@ class IoModule:
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         if sending and self.mode == "garbage" and len(data) > 2:
             b = bytearray(data)
-            b[7 if self.serial is None else 1] ^= 0x20    # the function code: not the one asked for (RTU: CRC)
+            b[0 if self.serial is None else -1] ^= 0xFF    # TCP: the transaction id; RTU: the CRC
             self.note("garbage", len(data))
             return bytes(b)
         return data

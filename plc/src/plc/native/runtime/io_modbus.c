@@ -5,10 +5,11 @@
  * RS-485 boards).  Each device has its own libmodbus context and its own poll
  * thread; the scan never talks to the network:
  *
- *   poll thread, every poll period:  write the outputs last handed over, read
- *     every input range; a cycle in which every transaction succeeded becomes
- *     the device's input snapshot, stamped with the time the cycle began.
- *     Outputs handed over between two cycles are written at once.
+ *   poll thread, every poll period:  read every input range, then write the
+ *     outputs last handed over.  Inputs read completely become the device's
+ *     snapshot, stamped with the time they were asked for -- provided the last
+ *     output write succeeded too (a device that takes no outputs is not
+ *     healthy).  Outputs handed over between two cycles are written at once.
  *   read_inputs (scan start):  copy each device's last complete snapshot into
  *     %IX/%IW.  A snapshot older than the device's max age (or none yet) means
  *     the device is lost: its inputs read 0/FALSE, its status input is TRUE.
@@ -107,6 +108,7 @@ typedef struct io_device {
     bool connected;
     bool link_up;            /* a complete cycle since the last connect; "link up" logged */
     bool announced;          /* a link state has been logged */
+    bool outputs_ok;         /* the last output write succeeded (inputs count as fresh only then) */
     uint16_t *in_work, *out_work;
     uint8_t bits[MODBUS_MAX_READ_BITS];
     uint32_t good;
@@ -398,6 +400,28 @@ static int read_inputs_now(io_device_t *d, uint16_t *in)
     return 0;
 }
 
+static void add_ms(struct timespec *ts, uint64_t t_ns)
+{
+    ts->tv_sec = (time_t)(t_ns / 1000000000u);
+    ts->tv_nsec = (long)(t_ns % 1000000000u);
+}
+
+/* Wait until `until` (monotonic ns) or a stop; TRUE when stopping. */
+static bool wait_or_stop(io_device_t *d, uint64_t until)
+{
+    struct timespec ts;
+    bool stop;
+
+    add_ms(&ts, until);
+    pthread_mutex_lock(&d->m);
+    while (!d->stop && now_ns() < until)
+        if (pthread_cond_timedwait(&d->cv, &d->m, &ts) == ETIMEDOUT)
+            break;
+    stop = d->stop;
+    pthread_mutex_unlock(&d->m);
+    return stop;
+}
+
 /* The link goes down: logged once, when it was up (or never announced). */
 static void link_down(io_device_t *d, const char *why)
 {
@@ -436,34 +460,16 @@ static void transaction_failed(io_device_t *d, int e, uint64_t now)
         disconnect(d, why);
         return;
     }
-    modbus_flush(d->ctx);   /* a late or partial answer must not be taken for the next one */
+    /* A late or partial answer must not be taken for the next request's: let it
+     * arrive (one response time-out), then drop it. */
+    if (d->last_error != IO_ERROR_EXCEPTION)
+        wait_or_stop(d, now + (uint64_t)d->timeout_ms * 1000000u);
+    modbus_flush(d->ctx);
     if (!d->rtu && now - d->last_good_ns > (uint64_t)d->age_ms * 1000000u) {
         snprintf(why, sizeof why, "no valid answer for %.0f ms (last: %s)", (now - d->last_good_ns) / 1e6,
                  modbus_strerror(e));
         disconnect(d, why);
     }
-}
-
-static void add_ms(struct timespec *ts, uint64_t t_ns)
-{
-    ts->tv_sec = (time_t)(t_ns / 1000000000u);
-    ts->tv_nsec = (long)(t_ns % 1000000000u);
-}
-
-/* Wait until `until` (monotonic ns) or a stop; TRUE when stopping. */
-static bool wait_or_stop(io_device_t *d, uint64_t until)
-{
-    struct timespec ts;
-    bool stop;
-
-    add_ms(&ts, until);
-    pthread_mutex_lock(&d->m);
-    while (!d->stop && now_ns() < until)
-        if (pthread_cond_timedwait(&d->cv, &d->m, &ts) == ETIMEDOUT)
-            break;
-    stop = d->stop;
-    pthread_mutex_unlock(&d->m);
-    return stop;
 }
 
 static void *poll_thread(void *arg)
@@ -498,24 +504,19 @@ static void *poll_thread(void *arg)
                 continue;
             }
             d->connected = true;
+            d->outputs_ok = false;
             d->reconnects++;
             d->last_good_ns = now_ns();
             next = now_ns();
         }
 
+        /* Inputs first, at the period's pace: their time stamp is when they were asked for. */
         const uint64_t start = now_ns();
-        pthread_mutex_lock(&d->m);
-        memcpy(d->out_work, d->out_next, d->n_out * sizeof *d->out_work);
-        seq = d->out_seq;
-        bool stop = d->stop;
-        pthread_mutex_unlock(&d->m);
-        if (stop)
-            break;
-
-        if (write_outputs_now(d, d->out_work) == 0 && read_inputs_now(d, d->in_work) == 0) {
+        if (read_inputs_now(d, d->in_work) == 0) {
             pthread_mutex_lock(&d->m);
             memcpy(d->in_snap, d->in_work, d->n_in * sizeof *d->in_snap);
-            d->snap_ns = start;
+            if (d->outputs_ok)        /* fresh only while the outputs reach the device too */
+                d->snap_ns = start;
             pthread_mutex_unlock(&d->m);
             d->good++;
             d->last_good_ns = start;
@@ -526,6 +527,20 @@ static void *poll_thread(void *arg)
             d->announced = true;
         } else {
             transaction_failed(d, errno, now_ns());
+        }
+
+        /* Then the outputs last handed over (written again every cycle: levels, like mb2hal). */
+        pthread_mutex_lock(&d->m);
+        memcpy(d->out_work, d->out_next, d->n_out * sizeof *d->out_work);
+        seq = d->out_seq;
+        bool stop = d->stop;
+        pthread_mutex_unlock(&d->m);
+        if (stop)
+            break;
+        if (d->connected) {
+            d->outputs_ok = write_outputs_now(d, d->out_work) == 0;
+            if (!d->outputs_ok)
+                transaction_failed(d, errno, now_ns());
         }
         publish_diag(d);
 
@@ -553,7 +568,8 @@ static void *poll_thread(void *arg)
             pthread_mutex_unlock(&d->m);
             if (stop || !changed || !d->connected)
                 break;
-            if (write_outputs_now(d, d->out_work) != 0) {
+            d->outputs_ok = write_outputs_now(d, d->out_work) == 0;
+            if (!d->outputs_ok) {
                 transaction_failed(d, errno, now_ns());
                 publish_diag(d);
             }
