@@ -32,13 +32,14 @@ from io_module import COIL_COUNT, DI_COUNT, IoModule, Mechanics, Wiring  # noqa:
 from rt_harness import SANITIZE, SANITIZER_ENV, SLOW  # noqa: E402
 
 from plc.host.modbus import ModbusClient  # noqa: E402
+from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS  # noqa: E402
 from plc.host.tags import Tags, load_map  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 MAP_FILE = REPO / "modbus_map" / "map.toml"
 RMAP = load_map(MAP_FILE)
 SIGNALS = {s["name"]: s for s in tomllib.loads(MAP_FILE.read_text())["signal"]}
-FIRST_OUTPUT_COIL = 16          # the module's coil 0 is %QX2.0 (the map's first physical output byte)
+FIRST_OUTPUT_COIL = MODULE_OUTPUTS[0]   # the module's coil 0 is the map's coil 16, %QX2.0
 IO_DIAG = 1088                  # input registers of I/O device 1 (runtime.h IO_DIAG_BASE)
 DIAG_STATE, DIAG_GARBAGE, DIAG_EXCEPTIONS = 0, 5, 6
 STATE_OK, STATE_LOST = 2, 3
@@ -102,8 +103,11 @@ def run_config(path: Path, device: dict) -> Path:
     lines += ["", "[retain]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("retain", {}).items() if k != "file"]
     lines += ["", "[io]", 'layer = "modbus"', "", "[[io.device]]"]
     lines += [f"{k} = {toml_value(v)}" for k, v in device.items()]
-    lines += [f'discrete_inputs = [{{ address = 0, count = {DI_COUNT}, to = "%IX0.0" }}]',
-              f'coils = [{{ address = 0, count = {COIL_COUNT}, from = "%QX2.0" }}]', ""]
+    first_in, first_out = MODULE_INPUTS[0], MODULE_OUTPUTS[0]
+    lines += [f'discrete_inputs = [{{ address = 0, count = {MODULE_INPUTS[1]}, '
+              f'to = "%IX{first_in // 8}.{first_in % 8}" }}]',
+              f'coils = [{{ address = 0, count = {MODULE_OUTPUTS[1]}, from = "%QX{first_out // 8}.{first_out % 8}" }}]',
+              ""]
     path.write_text("\n".join(lines))
     return path
 

@@ -37,6 +37,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+# The machine's I/O module, as laid out for both runtimes: its discrete inputs 0..31 are the map's discrete
+# inputs 0..31 (%IX0.0..%IX3.7 on our runtime), its coils 0..7 the map's coils 16..23 (%QX2.0..%QX2.7).  OpenPLC's
+# slave devices put the same module at %IX100.0.. and %QX100.0.. (`plc deploy openplc --slave-devices`).
+MODULE_INPUTS = (0, 32)            # first map discrete input, count
+MODULE_OUTPUTS = (16, 8)           # first map coil, count
+OPENPLC_SLAVE_FIRST_BYTE = 100     # OpenPLC v3: slave devices from %IX100.0 / %QX100.0 / %IW100 / %QW100
+
 MAX_DEVICES = 16
 BITS = 800            # %IX0.0..%IX99.7, %QX0.0..%QX99.7
 WORDS = 1024          # %IW0..%IW1023, %QW0..%QW1023
