@@ -278,9 +278,10 @@ def test_tool_changes_complete_over_modbus(tmp_path, transport, machine_file):
 
 # ------------------------------------------------------------------------------------------- comm faults
 
-@pytest.fixture(scope="module")
-def tcp_rig(tmp_path_factory):
-    rig = make_rig(tmp_path_factory.mktemp("io-modbus"), "tcp", "configs/machine.toml")
+@pytest.fixture(scope="module", params=["tcp", "rtu"])
+def fault_rig(request, tmp_path_factory):
+    """One PLC and module per transport for the comm-fault tests (they run in order on it)."""
+    rig = make_rig(tmp_path_factory.mktemp(f"io-modbus-{request.param}"), request.param, "configs/machine.toml")
     yield rig
     rig.close()
 
@@ -298,8 +299,8 @@ def recover_and_change(rig: Rig, tool: int) -> str:
     return out
 
 
-def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(tcp_rig):
-    rig = tcp_rig
+def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(fault_rig):
+    rig = fault_rig
     ok(rig.plc.host("clear", "T1 M6"), rig.plc)
     motor = rig.module.machine.wiring.motor_on
     result: dict = {}
@@ -334,8 +335,8 @@ def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(tcp_rig
     assert rig.plc.read("FaultReason")["FaultReason"] == 0
 
 
-def test_a_slow_module_still_completes_a_change(tcp_rig):
-    rig = tcp_rig
+def test_a_slow_module_still_completes_a_change(fault_rig):
+    rig = fault_rig
     rig.module.set_mode("normal")
     losses = rig.plc.text().count("): lost:")
     rig.module.set_mode("slow", 0.015)          # three poll periods per answer, within the response time-out
@@ -350,8 +351,8 @@ def test_a_slow_module_still_completes_a_change(tcp_rig):
 
 
 @pytest.mark.parametrize("mode,counter,tool", [("exception", DIAG_EXCEPTIONS, 4), ("garbage", DIAG_GARBAGE, 6)])
-def test_exceptions_or_garbage_are_counted_and_lost_after_the_age_limit(tcp_rig, mode, counter, tool):
-    rig = tcp_rig
+def test_exceptions_or_garbage_are_counted_and_lost_after_the_age_limit(fault_rig, mode, counter, tool):
+    rig = fault_rig
     rig.module.set_mode("normal")
     wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
     lines = rig.plc.text().count("): lost:")
