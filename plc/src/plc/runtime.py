@@ -310,7 +310,7 @@ def load_config(path: Path) -> RunConfig:
     if "device" in io:
         devices, problems = io_config.check_devices(path, text, io["device"])
         if problems:
-            raise ConfigError("\n".join(problems))
+            raise ConfigError(f"{len(problems)} problem(s) in the [[io.device]] tables:\n" + "\n".join(problems))
         cfg.io_devices = io_config.device_specs(devices)
     if cfg.io == "modbus" and not cfg.io_devices:
         raise ConfigError(f"{where('io', 'layer')}: layer \"modbus\" needs at least one [[io.device]]")
