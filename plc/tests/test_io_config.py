@@ -94,6 +94,12 @@ BAD = [
     ('[[io.device]]\ntcp = "127.0.0.1"\nstatus_input = "%IX0.3"\n'
      'discrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n',
      ":3:1: error: [[io.device]] 1: status_input %IX0.3 lies in discrete_inputs of device 1"),
+    ('[[io.device]]\nrtu = "/dev/null"\nunit = 1\ndiscrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n\n'
+     '[[io.device]]\nrtu = "/dev/null"\nunit = 1\ncoils = [{ address = 0, count = 8, from = "%QX2.0" }]\n',
+     ":8:1: error: [[io.device]] 2: unit 1 is already device 1 on serial line /dev/null"),
+    ('[[io.device]]\nrtu = "/dev/null"\nunit = 1\ndiscrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n\n'
+     '[[io.device]]\nrtu = "/dev/null"\nbaud = 9600\nunit = 2\ncoils = [{ address = 0, count = 8, from = "%QX2.0" }]\n',
+     ":7:1: error: [[io.device]] 2: serial line /dev/null is device 1's: give it the same baud"),
     ('[[io.device]]\nrtu = "/dev/null"\nport = 502\nunit = 0\n'
      'discrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n',
      ":3:1: error: [[io.device]] 1: port belongs to a tcp device"),
@@ -147,10 +153,13 @@ def test_locate_finds_keys_tables_and_inline_elements():
     ("tcp=127.0.0.1:1502 rtu=/dev/null di=0:8:0", "exactly one of"),
     ("tcp=127.0.0.1:1502 di=0:8:0:1", "safe values belong to output ranges"),
     ("tcp=127.0.0.1:1502 colour=red di=0:8:0", "unknown key"),
+    ("rtu=/dev/null unit=1 di=0:8:0 || rtu=/dev/null unit=1 co=0:8:16", "unit 1 twice on serial line"),
+    ("rtu=/dev/null unit=1 di=0:8:0 || rtu=/dev/null baud=9600 unit=2 co=0:8:16", "different line settings"),
 ])
 def test_the_runtime_refuses_a_bad_device_argument(spec, why):
     from rt_harness import runtime_binary
-    result = subprocess.run([str(runtime_binary()), "--io", "modbus", "--io-device", spec, "--port", "0",
+    devices = [a for one in spec.split(" || ") for a in ("--io-device", one)]
+    result = subprocess.run([str(runtime_binary()), "--io", "modbus", *devices, "--port", "0",
                              "--duration", "0.1", "--no-rt", "--status", "off"], capture_output=True, text=True,
                             timeout=60)
     assert result.returncode == 1 and why in result.stderr, result.stderr

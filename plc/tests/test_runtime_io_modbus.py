@@ -96,19 +96,29 @@ def toml_value(v) -> str:
     return "[" + ", ".join(toml_value(x) for x in v) + "]"
 
 
-def run_config(path: Path, device: dict) -> Path:
-    """The project's run configuration (host-writable ranges, retained registers) with one [[io.device]]."""
+INPUT_RANGE = (f'[{{ address = 0, count = {MODULE_INPUTS[1]}, '
+               f'to = "%IX{MODULE_INPUTS[0] // 8}.{MODULE_INPUTS[0] % 8}" }}]')
+OUTPUT_RANGE = (f'[{{ address = 0, count = {MODULE_OUTPUTS[1]}, '
+                f'from = "%QX{MODULE_OUTPUTS[0] // 8}.{MODULE_OUTPUTS[0] % 8}" }}]')
+
+
+def status_input(n: int) -> str:
+    a = SIGNALS[f"IoModule{n}Lost"]["address"]
+    return f"%IX{a // 8}.{a % 8}"
+
+
+def run_config(path: Path, devices: list[dict]) -> Path:
+    """The project's run configuration (host-writable ranges, retained registers) with [[io.device]] tables
+    (values that are inline TOML already, like the ranges, are written as they are)."""
     base = tomllib.loads((REPO / "configs" / "runtime.toml").read_text())
     lines = ["[modbus]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("modbus", {}).items()]
     lines += ["", "[retain]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("retain", {}).items() if k != "file"]
-    lines += ["", "[io]", 'layer = "modbus"', "", "[[io.device]]"]
-    lines += [f"{k} = {toml_value(v)}" for k, v in device.items()]
-    first_in, first_out = MODULE_INPUTS[0], MODULE_OUTPUTS[0]
-    lines += [f'discrete_inputs = [{{ address = 0, count = {MODULE_INPUTS[1]}, '
-              f'to = "%IX{first_in // 8}.{first_in % 8}" }}]',
-              f'coils = [{{ address = 0, count = {MODULE_OUTPUTS[1]}, from = "%QX{first_out // 8}.{first_out % 8}" }}]',
-              ""]
-    path.write_text("\n".join(lines))
+    lines += ["", "[io]", 'layer = "modbus"']
+    for device in devices:
+        lines += ["", "[[io.device]]"]
+        lines += [f"{k} = {v if isinstance(v, str) and v.startswith('[{') else toml_value(v)}"
+                  for k, v in device.items()]
+    path.write_text("\n".join(lines) + "\n")
     return path
 
 
@@ -222,25 +232,34 @@ class Rig:
             self.serial.close()
 
 
-def make_rig(tmp: Path, transport: str, machine_file: str, **device) -> Rig:
+def make_rig(tmp: Path, transport: str, machine_file: str, units: tuple[int, ...] = (1,)) -> Rig:
+    """The module and `plc run --io modbus`; with several units (RTU), the inputs come from the first unit and
+    the outputs go to the second, two devices on one line."""
     machine = tomllib.loads((REPO / machine_file).read_text())
     serial = None
     if transport == "rtu":
         if shutil.which("socat") is None:
             pytest.fail("socat is missing: scripts/setup installs it (the RTU tests need a pseudo-terminal pair)")
         serial = SerialPair(tmp)
-        module = IoModule(wiring_for(machine), mechanics_for(machine), serial=serial.module_end).start()
+        module = IoModule(wiring_for(machine), mechanics_for(machine), serial=serial.module_end, units=units).start()
         link = {"rtu": serial.plc_end, "baud": 115200}
     else:
-        module = IoModule(wiring_for(machine), mechanics_for(machine)).start()
+        module = IoModule(wiring_for(machine), mechanics_for(machine), units=units).start()
         link = {"tcp": "127.0.0.1", "port": module.port}
-    status = SIGNALS["IoModule1Lost"]["address"]
     # The age limit and the response time-out are far above any stall of a loaded test machine (the module is
     # Python, at normal priority), so a verdict does not depend on speed; the age limit stays below the
     # positioner's pocket time-out (10 s), so a silent module is reported as lost, not as a carousel error.
-    settings = {"name": "changer", **link, "unit": 1, "poll_ms": 5, "timeout_ms": int(min(250 * SLOW, 1000)),
-                "max_age_ms": int(min(1000 * SLOW, 3000)), "backoff_ms": [50, 400], "status_input": f"%IX{status // 8}.{status % 8}", **device}
-    plc = Plc(tmp, run_config(tmp / "run.toml", settings), sources_for(machine_file, tmp))
+    common = {**link, "poll_ms": 5, "timeout_ms": int(min(250 * SLOW, 1000)),
+              "max_age_ms": int(min(1000 * SLOW, 3000)), "backoff_ms": [50, 400]}
+    if len(units) == 1:
+        devices = [{"name": "changer", **common, "unit": units[0], "status_input": status_input(1),
+                    "discrete_inputs": INPUT_RANGE, "coils": OUTPUT_RANGE}]
+    else:
+        devices = [{"name": "sensors", **common, "unit": units[0], "status_input": status_input(1),
+                    "discrete_inputs": INPUT_RANGE},
+                   {"name": "actuators", **common, "unit": units[1], "status_input": status_input(2),
+                    "coils": OUTPUT_RANGE}]
+    plc = Plc(tmp, run_config(tmp / "run.toml", devices), sources_for(machine_file, tmp))
     try:
         plc.start()
     except BaseException:
@@ -272,6 +291,21 @@ def test_tool_changes_complete_over_modbus(tmp_path, transport, machine_file):
         assert "): lost:" not in rig.plc.text()
         print(f"{transport} {machine_file}: M6 T2 (Get Tool) {m6_seconds(first):.2f} s, "
               f"M6 T2->T4 (Put + Get) {m6_seconds(second):.2f} s")
+    finally:
+        rig.close()
+
+
+def test_two_units_on_one_serial_line_complete_a_change(tmp_path):
+    """RS-485 multi-drop: the sensors on unit 1, the actuators on unit 2, one line, one poll thread."""
+    rig = make_rig(tmp_path, "rtu", "configs/machine.toml", units=(1, 2))
+    try:
+        out = ok(rig.plc.host("clear", "T3 M6"), rig.plc)
+        assert out.splitlines()[-1] == "tool 3 in spindle", out
+        assert rig.plc.read("IoModule1Lost", "IoModule2Lost") == {"IoModule1Lost": False, "IoModule2Lost": False}
+        with ModbusClient("127.0.0.1", rig.plc.port) as client:
+            both = client.read_input_registers(IO_DIAG, 16)
+        assert both[DIAG_STATE] == STATE_OK and both[8 + DIAG_STATE] == STATE_OK, both
+        assert rig.module.machine.crashes == []
     finally:
         rig.close()
 

@@ -9,7 +9,7 @@ image::
 
     [[io.device]]
     name = "carousel"                 # for log lines (letters, digits, - and _)
-    tcp = "192.168.1.20"              # IPv4 address; or rtu = "/dev/ttyUSB0" (one device per serial line)
+    tcp = "192.168.1.20"              # IPv4 address; or rtu = "/dev/ttyUSB0" (several units may share a line)
     port = 502                        # tcp only
     # baud = 19200, parity = "none" | "even" | "odd", data_bits = 8, stop_bits = 1   (rtu only)
     unit = 1                          # Modbus unit (slave) id
@@ -402,7 +402,7 @@ def _check_ranges(ck: _Checker, key: Path_, where: str, kind: RangeKind, value: 
 
 def _check_overlaps(ck: _Checker, devices: list[IoDevice]) -> None:
     """Two ranges writing one part of the image, two ranges on one table of one device, a status input inside
-    an input range, two devices on one serial line."""
+    an input range; devices sharing a serial line with different line settings or the same unit."""
     def area(r: IoRange) -> str:
         return ("%QX" if r.kind.bits else "%QW") if r.kind.output else ("%IX" if r.kind.bits else "%IW")
 
@@ -439,16 +439,24 @@ def _check_overlaps(ck: _Checker, devices: list[IoDevice]) -> None:
                      f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} is already the "
                      f"status input of device {status[d.status_input]}")
         status[d.status_input] = d.index
-    lines: dict[str, int] = {}
+    lines: dict[str, IoDevice] = {}
     for d in devices:
         if d.rtu is None:
             continue
         real = os.path.realpath(d.rtu)
-        if real in lines:
+        first = lines.setdefault(real, d)
+        if first is d:
+            continue
+        line = (first.baud, first.parity, first.data_bits, first.stop_bits, first.timeout_ms)
+        if (d.baud, d.parity, d.data_bits, d.stop_bits, d.timeout_ms) != line:
             ck.error(("io", "device", d.index - 1, "rtu"),
-                     f"[[io.device]] {d.index}: serial line {d.rtu} already belongs to device {lines[real]} "
-                     "(one device per serial line in this version)")
-        lines[real] = d.index
+                     f"[[io.device]] {d.index}: serial line {d.rtu} is device {first.index}'s: give it the same "
+                     "baud, parity, data_bits, stop_bits and timeout_ms")
+        same_unit = [o.index for o in devices[:d.index - 1]
+                     if o.rtu is not None and os.path.realpath(o.rtu) == real and o.unit == d.unit]
+        if same_unit:
+            ck.error(("io", "device", d.index - 1, "unit"),
+                     f"[[io.device]] {d.index}: unit {d.unit} is already device {same_unit[0]} on serial line {d.rtu}")
 
 
 def _nth(dev: IoDevice, i: int) -> int:

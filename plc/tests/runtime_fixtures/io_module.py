@@ -10,7 +10,8 @@ Faults to inject (`module.mode`): "normal", "silent" (requests are dropped: the 
 answer corrupted on the wire).  `events` records what the module saw, stamped with time.monotonic() (the
 runtime logs CLOCK_MONOTONIC too, so both can be compared).
 
-Transports: TCP on loopback (port 0: a free port) or RTU on a serial device (one end of a socat pty pair).
+Transports: TCP on loopback (port 0: a free port) or RTU on a serial device (one end of a socat pty pair); with
+several `units` the same machine answers under each unit id (boards sharing one RS-485 line).
 """
 from __future__ import annotations
 
@@ -196,9 +197,9 @@ class IoModule:
     """The module: a pymodbus server in a thread of its own, TCP (`port`) or RTU (`serial`)."""
 
     def __init__(self, wiring: Wiring | None = None, mech: Mechanics | None = None, *, serial: str | None = None,
-                 baud: int = 115200, unit: int = 1) -> None:
+                 baud: int = 115200, units: tuple[int, ...] = (1,)) -> None:
         self.machine = Machine(wiring or Wiring(), mech or Mechanics())
-        self.serial, self.baud, self.unit = serial, baud, unit
+        self.serial, self.baud, self.units = serial, baud, units
         self.mode = "normal"
         self.slow_s = 0.0
         self.lock = threading.Lock()
@@ -247,7 +248,8 @@ class IoModule:
     def _run(self) -> None:
         self._loop = asyncio.new_event_loop()
         asyncio.set_event_loop(self._loop)
-        context = ModbusServerContext(slaves={self.unit: _Context(self)}, single=False)
+        # several units answer for the same machine: an RS-485 line with one board per unit
+        context = ModbusServerContext(slaves={u: _Context(self) for u in self.units}, single=False)
 
         async def main() -> None:
             if self.serial is None:

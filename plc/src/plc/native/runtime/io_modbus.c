@@ -2,8 +2,9 @@
  * io_modbus.c - remote I/O modules over Modbus TCP and Modbus RTU (--io modbus).
  *
  * The runtime is the Modbus master of any number of devices (I/O couplers,
- * RS-485 boards).  Each device has its own libmodbus context and its own poll
- * thread; the scan never talks to the network:
+ * RS-485 boards).  Each TCP device, and each serial line (its units polled in
+ * turn), has its own libmodbus context and its own poll thread; the scan never
+ * talks to the network:
  *
  *   poll thread, every poll period:  read every input range, then write the
  *     outputs last handed over.  Inputs read completely become the device's
@@ -92,8 +93,12 @@ typedef struct io_device {
     unsigned n_ranges, n_in, n_out;
     uint16_t *safe;          /* n_out safe values */
 
-    modbus_t *ctx;
-    pthread_t thread;
+    modbus_t *ctx;           /* the line's: devices on one serial line share their leader's */
+    struct io_device *leader;    /* first device of this line (itself for TCP and a line's first) */
+    struct io_device *next_member;   /* next device on the leader's line */
+    unsigned line_poll_ms;   /* leader: the shortest poll period of its line */
+    _Atomic uint32_t line_seq;   /* leader: bumped when any device of the line gets new outputs */
+    pthread_t thread;        /* leader only: polls every device of its line in turn */
     bool thread_started;
 
     pthread_mutex_t m;       /* guards the fields up to `stop` */
@@ -104,7 +109,8 @@ typedef struct io_device {
     uint32_t out_seq;
     bool stop;
 
-    /* poll thread only */
+    /* poll thread only (connection fields: the leader's count) */
+    uint32_t sent_seq;       /* out_seq last written */
     bool connected;
     bool link_up;            /* a complete cycle since the last connect; "link up" logged */
     bool announced;          /* a link state has been logged */
@@ -435,8 +441,8 @@ static void link_down(io_device_t *d, const char *why)
 static void disconnect(io_device_t *d, const char *why)
 {
     modbus_close(d->ctx);
-    d->connected = false;
-    link_down(d, why);
+    d->leader->connected = false;
+    link_down(d->leader, why);
 }
 
 /* A failed transaction: count it by kind; a broken connection, or answers
@@ -472,14 +478,72 @@ static void transaction_failed(io_device_t *d, int e, uint64_t now)
     }
 }
 
+/* One device's cycle on its line: inputs first (stamped when asked for), then its outputs. */
+static void poll_device(io_device_t *L, io_device_t *m, uint64_t *backoff)
+{
+    runtime_t *rt = m->rt;
+    const uint64_t start = now_ns();
+
+    modbus_set_slave(m->ctx, m->unit);
+    if (read_inputs_now(m, m->in_work) == 0) {
+        pthread_mutex_lock(&m->m);
+        memcpy(m->in_snap, m->in_work, m->n_in * sizeof *m->in_snap);
+        if (m->outputs_ok)            /* fresh only while the outputs reach the device too */
+            m->snap_ns = start;
+        pthread_mutex_unlock(&m->m);
+        m->good++;
+        m->last_good_ns = start;
+        *backoff = (uint64_t)L->backoff_min_ms * 1000000u;
+        if (!L->link_up)
+            log_msg(rt->log, LOG_INFO, "I/O device %u (%s): link up (%s)", L->index + 1, L->name, L->where);
+        L->link_up = true;
+        L->announced = true;
+    } else {
+        transaction_failed(m, errno, now_ns());
+    }
+    if (!L->connected)
+        return;
+    /* Then the outputs last handed over (written again every cycle: levels, like mb2hal). */
+    pthread_mutex_lock(&m->m);
+    memcpy(m->out_work, m->out_next, m->n_out * sizeof *m->out_work);
+    m->sent_seq = m->out_seq;
+    pthread_mutex_unlock(&m->m);
+    m->outputs_ok = write_outputs_now(m, m->out_work) == 0;
+    if (!m->outputs_ok)
+        transaction_failed(m, errno, now_ns());
+}
+
+/* Outputs handed over since they were last written go out now, device by device. */
+static void write_changed(io_device_t *L)
+{
+    for (io_device_t *m = L; m && L->connected; m = m->next_member) {
+        pthread_mutex_lock(&m->m);
+        const bool changed = m->out_seq != m->sent_seq;
+        if (changed) {
+            memcpy(m->out_work, m->out_next, m->n_out * sizeof *m->out_work);
+            m->sent_seq = m->out_seq;
+        }
+        pthread_mutex_unlock(&m->m);
+        if (!changed)
+            continue;
+        modbus_set_slave(m->ctx, m->unit);
+        m->outputs_ok = write_outputs_now(m, m->out_work) == 0;
+        if (!m->outputs_ok) {
+            transaction_failed(m, errno, now_ns());
+            publish_diag(m);
+        }
+    }
+}
+
+/* The poll thread of a line (a TCP device, or the devices of one serial line in turn). */
 static void *poll_thread(void *arg)
 {
-    io_device_t *d = arg;
-    runtime_t *rt = d->rt;
-    const uint64_t period = (uint64_t)d->poll_ms * 1000000u;
-    uint64_t backoff = (uint64_t)d->backoff_min_ms * 1000000u;
+    io_device_t *L = arg;
+    runtime_t *rt = L->rt;
+    const uint64_t period = (uint64_t)L->line_poll_ms * 1000000u;
+    uint64_t backoff = (uint64_t)L->backoff_min_ms * 1000000u;
     uint64_t next = now_ns();
-    uint32_t seq;
+    uint32_t seen = 0;
 
     if (rt->opt.realtime) {
         /* Below the scan, above the Modbus server: inputs are what the scan waits for. */
@@ -487,62 +551,38 @@ static void *poll_thread(void *arg)
         (void)pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
     }
     for (;;) {
-        if (!d->connected) {
+        if (!L->connected) {
             /* After a failure, wait the back-off first (doubling until a good cycle). */
-            if (d->announced || d->reconnects > 0) {
-                if (wait_or_stop(d, now_ns() + backoff))
+            if (L->announced || L->reconnects > 0) {
+                if (wait_or_stop(L, now_ns() + backoff))
                     break;
-                backoff = backoff * 2 > (uint64_t)d->backoff_max_ms * 1000000u
-                          ? (uint64_t)d->backoff_max_ms * 1000000u : backoff * 2;
+                backoff = backoff * 2 > (uint64_t)L->backoff_max_ms * 1000000u
+                          ? (uint64_t)L->backoff_max_ms * 1000000u : backoff * 2;
             }
-            if (modbus_connect(d->ctx) != 0) {
-                char why[sizeof d->where + 96];
-                snprintf(why, sizeof why, "cannot connect (%s: %s)", d->where, modbus_strerror(errno));
-                d->last_error = IO_ERROR_CONNECTION;
-                link_down(d, why);
-                publish_diag(d);
+            if (modbus_connect(L->ctx) != 0) {
+                char why[sizeof L->where + 96];
+                snprintf(why, sizeof why, "cannot connect (%s: %s)", L->where, modbus_strerror(errno));
+                for (io_device_t *m = L; m; m = m->next_member) {
+                    m->last_error = IO_ERROR_CONNECTION;
+                    publish_diag(m);
+                }
+                link_down(L, why);
                 continue;
             }
-            d->connected = true;
-            d->outputs_ok = false;
-            d->reconnects++;
-            d->last_good_ns = now_ns();
+            L->connected = true;
+            L->reconnects++;
+            for (io_device_t *m = L; m; m = m->next_member) {
+                m->outputs_ok = false;
+                m->last_good_ns = now_ns();
+            }
             next = now_ns();
         }
 
-        /* Inputs first, at the period's pace: their time stamp is when they were asked for. */
-        const uint64_t start = now_ns();
-        if (read_inputs_now(d, d->in_work) == 0) {
-            pthread_mutex_lock(&d->m);
-            memcpy(d->in_snap, d->in_work, d->n_in * sizeof *d->in_snap);
-            if (d->outputs_ok)        /* fresh only while the outputs reach the device too */
-                d->snap_ns = start;
-            pthread_mutex_unlock(&d->m);
-            d->good++;
-            d->last_good_ns = start;
-            backoff = (uint64_t)d->backoff_min_ms * 1000000u;
-            if (!d->link_up)
-                log_msg(rt->log, LOG_INFO, "I/O device %u (%s): link up (%s)", d->index + 1, d->name, d->where);
-            d->link_up = true;
-            d->announced = true;
-        } else {
-            transaction_failed(d, errno, now_ns());
-        }
-
-        /* Then the outputs last handed over (written again every cycle: levels, like mb2hal). */
-        pthread_mutex_lock(&d->m);
-        memcpy(d->out_work, d->out_next, d->n_out * sizeof *d->out_work);
-        seq = d->out_seq;
-        bool stop = d->stop;
-        pthread_mutex_unlock(&d->m);
-        if (stop)
-            break;
-        if (d->connected) {
-            d->outputs_ok = write_outputs_now(d, d->out_work) == 0;
-            if (!d->outputs_ok)
-                transaction_failed(d, errno, now_ns());
-        }
-        publish_diag(d);
+        seen = atomic_load(&L->line_seq);
+        for (io_device_t *m = L; m && L->connected; m = m->next_member)
+            poll_device(L, m, &backoff);
+        for (io_device_t *m = L; m; m = m->next_member)
+            publish_diag(m);
 
         next += period;
         const uint64_t now = now_ns();
@@ -550,29 +590,23 @@ static void *poll_thread(void *arg)
             next = now;       /* a late cycle: poll again at once, do not catch up */
 
         /* Until the next cycle: outputs handed over meanwhile go out at once. */
+        bool stop = false;
         for (;;) {
             struct timespec ts;
             bool changed;
 
             add_ms(&ts, next);
-            pthread_mutex_lock(&d->m);
-            while (!d->stop && d->out_seq == seq && now_ns() < next)
-                if (pthread_cond_timedwait(&d->cv, &d->m, &ts) == ETIMEDOUT)
+            pthread_mutex_lock(&L->m);
+            while (!L->stop && atomic_load(&L->line_seq) == seen && now_ns() < next)
+                if (pthread_cond_timedwait(&L->cv, &L->m, &ts) == ETIMEDOUT)
                     break;
-            stop = d->stop;
-            changed = d->out_seq != seq;
-            if (changed) {
-                memcpy(d->out_work, d->out_next, d->n_out * sizeof *d->out_work);
-                seq = d->out_seq;
-            }
-            pthread_mutex_unlock(&d->m);
-            if (stop || !changed || !d->connected)
+            stop = L->stop;
+            changed = atomic_load(&L->line_seq) != seen;
+            pthread_mutex_unlock(&L->m);
+            if (stop || !changed || !L->connected)
                 break;
-            d->outputs_ok = write_outputs_now(d, d->out_work) == 0;
-            if (!d->outputs_ok) {
-                transaction_failed(d, errno, now_ns());
-                publish_diag(d);
-            }
+            seen = atomic_load(&L->line_seq);
+            write_changed(L);
         }
         if (stop)
             break;
@@ -663,12 +697,19 @@ static void modbus_write_outputs(void *state, const plc_bool_t qx[MAP_BITS], con
             }
         }
         pthread_mutex_lock(&d->m);
-        if (memcmp(d->out_next, out, d->n_out * sizeof *out) != 0) {
+        const bool changed = memcmp(d->out_next, out, d->n_out * sizeof *out) != 0;
+        if (changed) {
             memcpy(d->out_next, out, d->n_out * sizeof *out);
             d->out_seq++;
-            pthread_cond_signal(&d->cv);
         }
         pthread_mutex_unlock(&d->m);
+        if (changed) {              /* wake the line's poll thread: it writes them at once */
+            io_device_t *L = d->leader;
+            atomic_fetch_add(&L->line_seq, 1);
+            pthread_mutex_lock(&L->m);
+            pthread_cond_signal(&L->cv);
+            pthread_mutex_unlock(&L->m);
+        }
     }
 }
 
@@ -698,17 +739,22 @@ static void modbus_close_layer(void *state)
         pthread_cond_broadcast(&d->cv);
         pthread_mutex_unlock(&d->m);
     }
+    for (unsigned i = 0; i < io->n; i++)
+        if (io->dev[i].thread_started)
+            pthread_join(io->dev[i].thread, NULL);
+    /* The poll threads are gone: leave every device with its safe values, once. */
     for (unsigned i = 0; i < io->n; i++) {
         io_device_t *d = &io->dev[i];
-        if (d->thread_started)
-            pthread_join(d->thread, NULL);
-        if (d->ctx) {
-            /* The poll thread is gone: leave the device with its safe values, once. */
-            if (d->connected) {
-                bool sent = write_outputs_now(d, d->safe) == 0;
-                log_msg(io->rt->log, sent ? LOG_INFO : LOG_WARN, "I/O device %u (%s): %s, connection closed",
-                        d->index + 1, d->name, sent ? "safe values written" : "safe values could not be written");
-            }
+        if (d->ctx && d->leader && d->leader->connected) {
+            modbus_set_slave(d->ctx, d->unit);
+            bool sent = write_outputs_now(d, d->safe) == 0;
+            log_msg(io->rt->log, sent ? LOG_INFO : LOG_WARN, "I/O device %u (%s): %s", d->index + 1, d->name,
+                    sent ? "safe values written" : "safe values could not be written");
+        }
+    }
+    for (unsigned i = 0; i < io->n; i++) {
+        io_device_t *d = &io->dev[i];
+        if (d->ctx && d->leader == d) {
             modbus_close(d->ctx);
             modbus_free(d->ctx);
         }
@@ -717,6 +763,42 @@ static void modbus_close_layer(void *state)
         free_device(d);
     }
     free(io);
+}
+
+/* Devices on one serial line (RS-485 multi-drop) share one context and one poll thread: the first one's. */
+static int group_lines(io_modbus_t *io, char *err, size_t errlen)
+{
+    for (unsigned i = 0; i < io->n; i++) {
+        io_device_t *d = &io->dev[i];
+        d->leader = d;
+        d->line_poll_ms = d->poll_ms;
+        for (unsigned j = 0; d->rtu && j < i; j++) {
+            io_device_t *o = &io->dev[j];
+            if (!o->rtu || o->leader != o || strcmp(o->path, d->path) != 0)
+                continue;
+            if (o->baud != d->baud || o->parity != d->parity || o->data_bits != d->data_bits
+                    || o->stop_bits != d->stop_bits || o->timeout_ms != d->timeout_ms) {
+                snprintf(err, errlen, "devices %u and %u share serial line %s with different line settings or "
+                         "time-outs", j + 1, i + 1, d->path);
+                return -1;
+            }
+            for (io_device_t *m = o; m; m = m->next_member)
+                if (m->unit == d->unit) {
+                    snprintf(err, errlen, "devices %u and %u: unit %d twice on serial line %s", m->index + 1, i + 1,
+                             d->unit, d->path);
+                    return -1;
+                }
+            io_device_t *tail = o;
+            while (tail->next_member)
+                tail = tail->next_member;
+            tail->next_member = d;
+            d->leader = o;
+            if (d->poll_ms < o->line_poll_ms)
+                o->line_poll_ms = d->poll_ms;
+            break;
+        }
+    }
+    return 0;
 }
 
 static int open_device(io_device_t *d, char *err, size_t errlen)
@@ -730,6 +812,10 @@ static int open_device(io_device_t *d, char *err, size_t errlen)
     pthread_mutex_init(&d->m, NULL);
     atomic_store(&d->state, IO_DEVICE_WAITING);
 
+    if (d->leader != d) {           /* a further device on a serial line: its leader's context */
+        d->ctx = d->leader->ctx;
+        return 0;
+    }
     if (d->rtu)
         d->ctx = modbus_new_rtu(d->path, d->baud, d->parity, d->data_bits, d->stop_bits);
     else
@@ -778,6 +864,12 @@ static int modbus_open_layer(runtime_t *rt, void **state, char *err, size_t errl
         free(io);
         return -1;
     }
+    if (group_lines(io, err, errlen) != 0) {
+        for (unsigned k = 0; k < io->n; k++)
+            free_device(&io->dev[k]);
+        free(io);
+        return -1;
+    }
     for (unsigned i = 0; i < io->n; i++) {
         io_device_t *d = &io->dev[i];
         if (open_device(d, err, errlen) != 0) {
@@ -796,6 +888,8 @@ static int modbus_open_layer(runtime_t *rt, void **state, char *err, size_t errl
     }
     for (unsigned i = 0; i < io->n; i++) {
         io_device_t *d = &io->dev[i];
+        if (d->leader != d)
+            continue;
         rc = pthread_create(&d->thread, NULL, poll_thread, d);
         if (rc != 0) {
             snprintf(err, errlen, "cannot start the poll thread of device %u: %s", i + 1, strerror(rc));
