@@ -124,3 +124,17 @@ def test_openplc_needs_config0_and_res0(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert deploy.main(["openplc", "--out", str(tmp_path / "out.st"), "--src", str(src)]) == 1
     assert "OpenPLC needs CONFIGURATION Config0" in capsys.readouterr().err
+
+
+def test_slave_devices_moves_the_machine_io_where_openplc_slave_devices_put_it(tmp_path, monkeypatch):
+    """--slave-devices: the I/O module's inputs 0-31 at %IX100.0.., its coils 0-7 at %QX100.0.. (the layout of
+    plc.io_config, the same module `plc run --io modbus` uses); host signals stay where the map puts them."""
+    out = tmp_path / "atc_openplc_slaves.st"
+    monkeypatch.chdir(REPO)
+    assert deploy.main(["openplc", "--out", str(out), "--slave-devices", "-q"]) == 0
+    text = out.read_text()
+    assert re.search(r"\bEStopOk AT %IX100\.0\b", text) and re.search(r"\bCarouselPocket AT %IX102\.0\b", text)
+    assert re.search(r"\bCarouselMotorOn AT %QX100\.0\b", text) and re.search(r"\bColletOpen AT %QX100\.3\b", text)
+    assert re.search(r"\bToolPrepared AT %QX10\.0\b", text), "host signals keep their map address"
+    assert not re.search(r" AT %IX[0-3]\.\d", text) and not re.search(r" AT %QX2\.\d", text)
+    assert deploy.relocate("a AT %IX0.0 : BOOL;", {"B": "%IX100.0"})[1] == ["B"]

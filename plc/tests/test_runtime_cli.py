@@ -143,7 +143,7 @@ def test_defaults_and_empty_writable_lists():
     ("[modbus]\nwritable_registers = [\"9-2\"]\n", "range '9-2' is outside"),
     ("[modbus]\nwritable_registers = [\"abc\"]\n", "'abc' is not an address or a range"),
     ("[modbus]\nwritable_registers = 12.5\n", "expected a list of ranges"),
-    ("[io]\nlayer = \"gpio\"\n", "[io] layer: expected \"sim\" or \"none\", got 'gpio'"),
+    ("[io]\nlayer = \"gpio\"\n", "[io] layer: expected one of \"sim\", \"none\", \"modbus\", got 'gpio'"),
     ("[retain]\nfile = 3\n", "[retain] file: expected a file name"),
     ("[retain]\ninterval_ms = -1\n", "[retain] interval_ms: expected an integer"),
     ("[retain]\nregisters = [\"8192\"]\n", "[retain] registers: range '8192' is outside 0-8191"),

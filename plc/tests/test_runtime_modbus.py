@@ -98,7 +98,8 @@ def test_table_ends_and_the_diagnostic_block(rt):
     with h.Client(rt.port) as c:
         assert c.read_coils(799) == [False]
         assert len(c.read_input(1023, 65)) == 65                 # %IW1023 + the diagnostic block
-        for fc, addr, count in ((1, 800, 1), (2, 799, 2), (3, 8192, 1), (3, 8191, 2), (4, 1088, 1)):
+        assert c.read_input(1088, 125)[:8] == [0] * 8             # I/O device block (--io modbus): unused here
+        for fc, addr, count in ((1, 800, 1), (2, 799, 2), (3, 8192, 1), (3, 8191, 2), (4, 1216, 1), (4, 1215, 2)):
             with pytest.raises(h.ModbusError) as e:
                 c.request(struct.pack(">BHH", fc, addr, count))
             assert e.value.code == 2, (fc, addr)

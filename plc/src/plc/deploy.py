@@ -177,6 +177,35 @@ def check_bundle(text: str, diags: Diagnostics) -> tuple[int, int]:
         return len(result.diags.errors), len(result.diags.warnings)
 
 
+def slave_device_locations(root: Path) -> dict[str, str]:
+    """Signal name -> its %IX/%QX on OpenPLC when the machine's I/O module is an OpenPLC slave device: the module
+    layout of io_config (inputs 0..31, coils 16..23 of the map) moved to %IX100.0.. / %QX100.0.."""
+    import tomllib
+    from .io_config import MODULE_INPUTS, MODULE_OUTPUTS, OPENPLC_SLAVE_FIRST_BYTE
+    data = tomllib.loads((root / "modbus_map" / "map.toml").read_text())
+    out = {}
+    for sig in data.get("signal", []):
+        table, direction, a = sig.get("table"), sig.get("direction"), sig.get("address", -1)
+        if direction == "input" and table == "discrete_input" and MODULE_INPUTS[0] <= a < sum(MODULE_INPUTS):
+            k, prefix = a - MODULE_INPUTS[0], "%IX"
+        elif direction == "output" and table == "coil" and MODULE_OUTPUTS[0] <= a < sum(MODULE_OUTPUTS):
+            k, prefix = a - MODULE_OUTPUTS[0], "%QX"
+        else:
+            continue
+        out[sig["name"]] = f"{prefix}{OPENPLC_SLAVE_FIRST_BYTE + k // 8}.{k % 8}"
+    return out
+
+
+def relocate(text: str, locations: dict[str, str]) -> tuple[str, list[str]]:
+    """Move the located declarations `Name AT %IXa.b` of the bundle to `locations`; names not found are returned."""
+    missing = []
+    for name, where in locations.items():
+        text, n = re.subn(rf"(\b{re.escape(name)}\s+AT\s+)%[IQ]X\d+\.\d", rf"\g<1>{where}", text, flags=re.I)
+        if n != 1:
+            missing.append(name)
+    return text, missing
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="plc deploy", description="Bundle the application for another runtime "
                                 "(openplc), or install and upgrade our soft-PLC as a systemd service (service, "
@@ -190,6 +219,10 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--out", required=True, type=Path, metavar="FILE.st", help="the file to write")
     o.add_argument("--src", type=Path, action="append", metavar="DIR",
                    help="ST source directory (default: st_src/ of the project; repeatable)")
+    o.add_argument("--slave-devices", action="store_true",
+                   help="place the machine's sensors and actuators where OpenPLC's slave devices put them: the "
+                        "I/O module's discrete inputs 0-31 at %%IX100.0-%%IX103.7, its coils 0-7 at "
+                        "%%QX100.0-%%QX100.7 (the module of `plc run --io modbus` serves both runtimes)")
     o.add_argument("-q", "--quiet", action="store_true", help="print errors only")
     service.add_parsers(sub)
     return p
@@ -223,6 +256,18 @@ def main(argv: list[str]) -> int:
             return EXIT_FINDINGS
     diags = Diagnostics()
     text, names = bundle(src, diags)
+    if args.slave_devices:
+        if root is None:
+            print("plc deploy: error: --slave-devices needs the project's modbus_map/map.toml (run inside the "
+                  "project)", file=sys.stderr)
+            return EXIT_USAGE
+        text, missing = relocate(text, slave_device_locations(root))
+        if missing:
+            print(f"plc deploy: error: --slave-devices: no located declaration of {', '.join(missing)} in the "
+                  "sources (regenerate them: plc map generate)", file=sys.stderr)
+            return EXIT_FINDINGS
+        text = text.replace("(* atc-plc for the OpenPLC runtime:", "(* atc-plc for the OpenPLC runtime, machine I/O "
+                            "on slave devices (%IX100.0.., %QX100.0..):", 1)
     n_err, n_warn = (0, 0)
     if not diags.has_errors():
         n_err, n_warn = check_bundle(text, diags)

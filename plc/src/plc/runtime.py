@@ -21,7 +21,8 @@ Configuration file (every key optional; paths relative to the file's directory):
     writable_registers = ["512-8191"]
 
     [io]
-    layer = "sim"                   # "sim" or "none"
+    layer = "sim"                   # "sim", "none" or "modbus"
+    # [[io.device]] tables: the remote I/O devices of layer "modbus" (see plc/src/plc/io_config.py)
 
     [retain]
     file = "var/plc.retain"
@@ -50,6 +51,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Sequence
 
+from . import io_config
 from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
 
 BINARY_NAME = "plc-runtime"
@@ -64,6 +66,8 @@ WARNINGS = ["-std=c11", "-Wall", "-Wextra", "-Werror"]
 OPTIMISE = ["-O2", "-g"]
 SANITIZE = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
             "-fno-sanitize-recover=undefined"]
+
+IO_LAYERS = ("sim", "none", "modbus")
 
 APT_HINT = "install the Debian packages gcc, make, pkg-config and libmodbus-dev"
 
@@ -176,6 +180,7 @@ class RunConfig:
     writable_coils: list[str] | None = None          # None: the runtime's default
     writable_registers: list[str] | None = None
     io: str = "sim"
+    io_devices: list[str] = dataclasses.field(default_factory=list)   # --io-device specs ([[io.device]])
     retain_file: Path | None = None                  # None: DEFAULT_RETAIN_FILE
     retain_interval_ms: int = 200
     retain_registers: list[str] = dataclasses.field(default_factory=list)
@@ -188,7 +193,7 @@ class RunConfig:
 _KEYS = {
     "modbus": {"bind", "port", "max_clients", "frame_timeout_ms", "read_only", "allow", "writable_coils",
                "writable_registers"},
-    "io": {"layer"},
+    "io": {"layer", "device"},
     "retain": {"file", "interval_ms", "registers"},
     "scan": {"realtime", "rt_priority", "status_interval_s", "watchdog_ms"},
 }
@@ -245,7 +250,8 @@ def load_config(path: Path) -> RunConfig:
     """Read and check a TOML run configuration; raise ConfigError on any problem."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        data = tomllib.loads(text)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -297,9 +303,17 @@ def load_config(path: Path) -> RunConfig:
 
     io = data.get("io", {})
     if "layer" in io:
-        if io["layer"] not in ("sim", "none"):
-            raise ConfigError(f"{where('io', 'layer')}: expected \"sim\" or \"none\", got {io['layer']!r}")
+        if io["layer"] not in IO_LAYERS:
+            raise ConfigError(f"{where('io', 'layer')}: expected one of "
+                              + ", ".join(f'"{n}"' for n in IO_LAYERS) + f", got {io['layer']!r}")
         cfg.io = io["layer"]
+    if "device" in io:
+        devices, problems = io_config.check_devices(path, text, io["device"])
+        if problems:
+            raise ConfigError(f"{len(problems)} problem(s) in the [[io.device]] tables:\n" + "\n".join(problems))
+        cfg.io_devices = io_config.device_specs(devices)
+    if cfg.io == "modbus" and not cfg.io_devices:
+        raise ConfigError(f"{where('io', 'layer')}: layer \"modbus\" needs at least one [[io.device]]")
 
     retain = data.get("retain", {})
     if "file" in retain:
@@ -350,6 +364,9 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
         argv.append("--no-rt")
     if cfg.read_only:
         argv.append("--read-only")
+    if cfg.io == "modbus":
+        for spec in cfg.io_devices:
+            argv += ["--io-device", spec]
     return argv
 
 
@@ -360,7 +377,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, metavar="FILE", help="TOML run configuration")
     parser.add_argument("--bind", metavar="ADDR", help="IPv4 address to serve Modbus on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, metavar="N", help=f"Modbus/TCP port (default {DEFAULT_PORT})")
-    parser.add_argument("--io", choices=("sim", "none"), help="I/O layer (default sim)")
+    parser.add_argument("--io", choices=IO_LAYERS,
+                        help="I/O layer (default sim; modbus: the [[io.device]] remote I/O of --config)")
     parser.add_argument("--read-only", action="store_true", default=None,
                         help="serve reads only: every Modbus write is answered with exception 01")
     parser.add_argument("--retain", type=Path, metavar="FILE",
@@ -380,6 +398,9 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
         cfg.port = _check_int("--port", args.port, 0, 65535)
     if args.io is not None:
         cfg.io = args.io
+    if cfg.io == "modbus" and not cfg.io_devices:
+        raise ConfigError("--io modbus needs the remote I/O devices: [[io.device]] tables in the run "
+                          "configuration (--config FILE)")
     if args.read_only:
         cfg.read_only = True
     if args.retain is not None:

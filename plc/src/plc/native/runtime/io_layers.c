@@ -8,6 +8,7 @@
 const io_layer_t *const io_layers[] = {
     &io_sim_layer,
     &io_none_layer,
+    &io_modbus_layer,
     NULL,
 };
 

@@ -7,8 +7,9 @@
  */
 #include "runtime.h"
 
-static int none_open(void **state, char *err, size_t errlen)
+static int none_open(runtime_t *rt, void **state, char *err, size_t errlen)
 {
+    (void)rt;
     (void)err;
     (void)errlen;
     *state = NULL;

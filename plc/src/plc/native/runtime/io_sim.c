@@ -22,8 +22,9 @@ typedef struct sim_plant {
     uint16_t qw[MAP_WORDS];
 } sim_plant_t;
 
-static int sim_open(void **state, char *err, size_t errlen)
+static int sim_open(runtime_t *rt, void **state, char *err, size_t errlen)
 {
+    (void)rt;
     (void)err;
     (void)errlen;
     *state = calloc(1, sizeof(sim_plant_t));

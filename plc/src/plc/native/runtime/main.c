@@ -41,7 +41,10 @@ static void usage(FILE *f)
 "\n"
 "  --bind ADDR              IPv4 address to listen on (default 127.0.0.1)\n"
 "  --port N                 TCP port (default %d; 0 = any free port, logged)\n"
-"  --io sim|none            I/O layer (default sim: outputs looped back to inputs)\n"
+"  --io sim|none|modbus     I/O layer (default sim: outputs looped back to inputs;\n"
+"                           modbus: remote I/O devices given by --io-device)\n"
+"  --io-device SPEC         a remote I/O device of --io modbus (repeatable, at most %u;\n"
+"                           `plc run` writes SPEC from the run configuration, see io_modbus.c)\n"
 "  --retain FILE            file that keeps RETAIN data across restarts (default: none)\n"
 "  --retain-interval MS     minimum time between two retain saves (default %d)\n"
 "  --retain-registers LIST  holding registers saved with RETAIN data, e.g. 1024-1039\n"
@@ -70,7 +73,7 @@ static void usage(FILE *f)
 "\n"
 "Diagnostics are in input registers %u-%u (see runtime.h).  Exit status: 0 after\n"
 "SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error.\n",
-            DEFAULT_PORT, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_FRAME_TIMEOUT_MS,
+            DEFAULT_PORT, IO_MAX_DEVICES, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_FRAME_TIMEOUT_MS,
             DEFAULT_RT_PRIORITY,
             DEFAULT_WATCHDOG_MS, DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
 }
@@ -150,7 +153,7 @@ static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char
     return 0;
 }
 
-enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
+enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_IO_DEVICE, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
        OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
        OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP };
 
@@ -160,6 +163,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "bind", required_argument, NULL, OPT_BIND },
         { "port", required_argument, NULL, OPT_PORT },
         { "io", required_argument, NULL, OPT_IO },
+        { "io-device", required_argument, NULL, OPT_IO_DEVICE },
         { "retain", required_argument, NULL, OPT_RETAIN },
         { "retain-interval", required_argument, NULL, OPT_RETAIN_INTERVAL },
         { "retain-registers", required_argument, NULL, OPT_RETAIN_REGISTERS },
@@ -225,6 +229,11 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
                     snprintf(text + n, sizeof text - (size_t)n, ")");
                 return usage_error("%s", text);
             }
+            break;
+        case OPT_IO_DEVICE:
+            if (o->n_io_devices >= (int)IO_MAX_DEVICES)
+                return usage_error("--io-device: more than %s devices", "16");
+            o->io_devices[o->n_io_devices++] = optarg;
             break;
         case OPT_RETAIN:
             o->retain_path = optarg;
@@ -308,6 +317,10 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     }
     if (optind < argc)
         return usage_error("unexpected argument '%s'", argv[optind]);
+    if (o->n_io_devices > 0 && o->io != &io_modbus_layer)
+        return usage_error("--io-device needs --io modbus (I/O layer '%s' has no devices)", o->io->name);
+    if (o->n_io_devices == 0 && o->io == &io_modbus_layer)
+        return usage_error("--io modbus needs at least one --io-device%s", "");
     return 0;
 }
 
@@ -386,7 +399,7 @@ int main(int argc, char **argv)
         log_msg(rt.log, LOG_ERROR, "%s", err);
         goto out_log;
     }
-    if (rt.opt.io->open(&rt.io_state, err, sizeof err) != 0) {
+    if (rt.opt.io->open(&rt, &rt.io_state, err, sizeof err) != 0) {
         log_msg(rt.log, LOG_ERROR, "I/O layer %s: %s", rt.opt.io->name, err);
         goto out_log;
     }

@@ -12,7 +12,8 @@
  *                    its statistics
  *   modbus_server.c  Modbus/TCP server thread on libmodbus
  *   retain.c         RETAIN variables saved atomically and restored at start
- *   io_sim.c/io_none.c  the physical side of the image, behind io_layer_t
+ *   io_sim.c/io_none.c/io_modbus.c  the physical side of the image, behind io_layer_t
+ *                    (io_modbus.c: remote I/O devices polled by their own threads)
  *   watchdog.c       forces outputs safe when run() never returns
  *   notify.c         tells a service manager (systemd) ready, alive, stopping
  *   log.c            log lines and the live status line
@@ -58,7 +59,15 @@
  */
 #define DIAG_BASE       1024u
 #define DIAG_COUNT      64u
-#define MAP_INPUT_REGS  (DIAG_BASE + DIAG_COUNT)
+
+/*
+ * I/O device block (--io modbus): input registers 1088.., IO_DIAG_WORDS per
+ * remote I/O device in configuration order.  See IO_DIAG_* below.
+ */
+#define IO_MAX_DEVICES  16u
+#define IO_DIAG_WORDS   8u
+#define IO_DIAG_BASE    (DIAG_BASE + DIAG_COUNT)
+#define MAP_INPUT_REGS  (IO_DIAG_BASE + IO_MAX_DEVICES * IO_DIAG_WORDS)
 
 enum diag_offset {
     DIAG_VERSION = 0,          /* layout version, 1 */
@@ -92,6 +101,27 @@ enum diag_offset {
     DIAG_DROPPED = 52          /* u32: connections the server closed (frame timeout, slow
                                   reader, slot reclaimed, not Modbus, socket error) */
 };
+
+enum io_diag_offset {
+    IO_DIAG_STATE = 0,         /* io_device_state_t */
+    IO_DIAG_LAST_ERROR = 1,    /* io_error_t of the last failed transaction */
+    IO_DIAG_GOOD = 2,          /* u32: complete poll cycles */
+    IO_DIAG_TIMEOUTS = 4,      /* u16 each (saturated): transactions with no answer in time */
+    IO_DIAG_GARBAGE = 5,       /*   answers that were not valid Modbus (CRC, length, wrong unit...) */
+    IO_DIAG_EXCEPTIONS = 6,    /*   Modbus exception answers */
+    IO_DIAG_RECONNECTS = 7     /*   connections (re)opened */
+};
+
+typedef enum io_device_state {
+    IO_DEVICE_UNUSED = 0,      /* no device configured at this index */
+    IO_DEVICE_WAITING = 1,     /* configured, no complete input yet */
+    IO_DEVICE_OK = 2,          /* inputs fresh (younger than its max age) */
+    IO_DEVICE_LOST = 3         /* inputs too old: status input TRUE, its outputs safe */
+} io_device_state_t;
+
+typedef enum io_error {
+    IO_ERROR_NONE = 0, IO_ERROR_TIMEOUT = 1, IO_ERROR_GARBAGE = 2, IO_ERROR_EXCEPTION = 3, IO_ERROR_CONNECTION = 4
+} io_error_t;
 
 #define DIAG_FLAG_REALTIME        0x0001u  /* scan thread runs SCHED_FIFO */
 #define DIAG_FLAG_RETAIN_RESTORED 0x0002u  /* retained values restored at start */
@@ -157,10 +187,12 @@ typedef struct bus_image {
 /* The physical side of the image.  read_inputs() runs at the start of each
  * scan, write_outputs() at its end (with all-zero coils and words while the
  * program is stopped).  Both run on the scan thread and must not block for long. */
+typedef struct runtime runtime_t;
+
 typedef struct io_layer {
     const char *name;
     const char *description;
-    int (*open)(void **state, char *err, size_t errlen);
+    int (*open)(runtime_t *rt, void **state, char *err, size_t errlen);
     void (*read_inputs)(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw[MAP_WORDS]);
     void (*write_outputs)(void *state, const plc_bool_t qx[MAP_BITS], const uint16_t qw[MAP_WORDS]);
     void (*close)(void *state);
@@ -168,6 +200,7 @@ typedef struct io_layer {
 
 extern const io_layer_t io_sim_layer;
 extern const io_layer_t io_none_layer;
+extern const io_layer_t io_modbus_layer;
 
 /* Every I/O layer, found by name (--io NAME), as libmodbus finds its backends;
  * NULL-terminated.  A new layer is one entry here and one source file. */
@@ -207,6 +240,8 @@ typedef struct rt_options {
     double duration_s;             /* stop after this long (0: run until signalled) */
     int watchdog_ms;               /* longest run() call allowed (0: no watchdog) */
     bool describe_retain;          /* print the retained entries and exit */
+    const char *io_devices[IO_MAX_DEVICES];   /* --io-device SPEC, for --io modbus (io_modbus.c) */
+    int n_io_devices;
 } rt_options_t;
 
 /* ------------------------------------------------------------ statistics */
@@ -247,7 +282,7 @@ typedef struct retain_store retain_store_t;
 typedef struct watchdog watchdog_t;
 typedef struct notifier notifier_t;
 
-typedef struct runtime {
+struct runtime {
     rt_options_t opt;
     const plc_program_t *prog;
     uint64_t period_ns;
@@ -276,7 +311,7 @@ typedef struct runtime {
     int32_t fault_line, fault_col;
     scan_stats_t stats;            /* scan thread only; published to diag */
     uint16_t flags;                /* DIAG_FLAG_*, scan thread only */
-} runtime_t;
+};
 
 /* image.c */
 int image_bind_program(runtime_t *rt, char *err, size_t errlen);

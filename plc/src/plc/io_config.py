@@ -1,0 +1,469 @@
+"""Remote I/O devices of `plc run --io modbus`: the `[[io.device]]` tables of the run configuration.
+
+Each device is a Modbus TCP or Modbus RTU slave (an I/O coupler, an RS-485 board) that the runtime polls from
+its own thread (plc/src/plc/native/runtime/io_modbus.c).  Its ranges map the device's tables onto the program's
+image::
+
+    [io]
+    layer = "modbus"
+
+    [[io.device]]
+    name = "carousel"                 # for log lines (letters, digits, - and _)
+    tcp = "192.168.1.20"              # IPv4 address; or rtu = "/dev/ttyUSB0" (several units may share a line)
+    port = 502                        # tcp only
+    # baud = 19200, parity = "none" | "even" | "odd", data_bits = 8, stop_bits = 1   (rtu only)
+    unit = 1                          # Modbus unit (slave) id
+    poll_ms = 5                       # poll period
+    timeout_ms = 20                   # response timeout of one transaction
+    max_age_ms = 15                   # inputs older than this: the device is lost (default 2 polls + timeout)
+    backoff_ms = [100, 2000]          # reconnect back-off: first wait, doubling up to the second
+    status_input = "%IX5.0"           # TRUE while the device is lost (or not yet heard from)
+    discrete_inputs = [{ address = 0, count = 32, to = "%IX0.0" }]           # FC2
+    coils = [{ address = 0, count = 8, from = "%QX2.0", safe = false }]       # FC15; safe: one value or a list
+    input_registers = [{ address = 0, count = 2, to = "%IW0" }]              # FC4
+    holding_registers_read = [{ address = 0, count = 2, to = "%IW2" }]       # FC3
+    holding_registers_write = [{ address = 8, count = 2, from = "%QW0", safe = 0 }]   # FC16
+
+Every problem is reported with `file:line:col` before anything starts: unknown keys, ranges that overlap (in the
+image, or on one device's table), a range outside the image, a missing serial device, a baud rate the serial
+driver cannot set.  `device_specs()` turns the checked devices into the runtime's `--io-device` arguments.
+"""
+from __future__ import annotations
+
+import ipaddress
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+# The machine's I/O module, as laid out for both runtimes: its discrete inputs 0..31 are the map's discrete
+# inputs 0..31 (%IX0.0..%IX3.7 on our runtime), its coils 0..7 the map's coils 16..23 (%QX2.0..%QX2.7).  OpenPLC's
+# slave devices put the same module at %IX100.0.. and %QX100.0.. (`plc deploy openplc --slave-devices`).
+MODULE_INPUTS = (0, 32)            # first map discrete input, count
+MODULE_OUTPUTS = (16, 8)           # first map coil, count
+OPENPLC_SLAVE_FIRST_BYTE = 100     # OpenPLC v3: slave devices from %IX100.0 / %QX100.0 / %IW100 / %QW100
+
+MAX_DEVICES = 16
+BITS = 800            # %IX0.0..%IX99.7, %QX0.0..%QX99.7
+WORDS = 1024          # %IW0..%IW1023, %QW0..%QW1023
+# The baud rates libmodbus 3.1 can set on Linux (others silently become 9600).
+BAUD_RATES = (110, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000,
+              576000, 921600, 1000000, 1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000)
+PARITY = {"none": "N", "even": "E", "odd": "O"}
+
+
+@dataclass(frozen=True)
+class RangeKind:
+    key: str          # key in [[io.device]]
+    spec: str         # key in the runtime's --io-device
+    output: bool
+    bits: bool
+    max_count: int    # libmodbus' limit for one request
+    table: str        # the device's table, for overlap messages
+
+
+KINDS = (
+    RangeKind("discrete_inputs", "di", False, True, 2000, "discrete inputs"),
+    RangeKind("coils", "co", True, True, 1968, "coils"),
+    RangeKind("input_registers", "ir", False, False, 125, "input registers"),
+    RangeKind("holding_registers_read", "hr", False, False, 125, "holding registers"),
+    RangeKind("holding_registers_write", "hw", True, False, 123, "holding registers"),
+)
+KIND_BY_KEY = {k.key: k for k in KINDS}
+
+DEVICE_KEYS = {"name", "tcp", "port", "rtu", "baud", "parity", "data_bits", "stop_bits", "unit", "poll_ms",
+               "timeout_ms", "max_age_ms", "backoff_ms", "status_input", *KIND_BY_KEY}
+RANGE_KEYS = {"address", "count", "to", "from", "safe"}
+
+
+# ------------------------------------------------------------------ positions
+
+Path_ = tuple  # a key path: ("io", "device", 0, "coils", 1, "safe")
+
+
+def locate(text: str) -> dict[Path_, tuple[int, int]]:
+    """Line and column (1-based) of every table header, `key =` and inline-table element of a TOML text.
+
+    tomllib gives no positions; this scanner knows enough TOML for run configurations: [table], [[array]],
+    dotted keys, strings, comments and (multi-line) arrays of inline tables.
+    """
+    pos: dict[Path_, tuple[int, int]] = {}
+    counts: dict[Path_, int] = {}
+    table: Path_ = ()
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines):
+        raw = lines[i]
+        stripped = raw.lstrip()
+        col = len(raw) - len(stripped) + 1
+        m = re.match(r"\[\[\s*([^\]]+?)\s*\]\]", stripped) or re.match(r"\[\s*([^\]]+?)\s*\]", stripped)
+        if m:
+            keys = tuple(k.strip().strip('"') for k in m.group(1).split("."))
+            if stripped.startswith("[["):
+                n = counts.get(keys, 0)
+                counts[keys] = n + 1
+                table = keys + (n,)
+            else:
+                table = keys
+            pos.setdefault(table, (i + 1, col))
+            i += 1
+            continue
+        m = re.match(r"([A-Za-z0-9_\-\".]+)\s*=\s*", stripped)
+        if not m:
+            i += 1
+            continue
+        key = table + tuple(k.strip().strip('"') for k in m.group(1).split("."))
+        pos[key] = (i + 1, col)
+        # the value: walk brackets (skipping strings and comments) to find inline tables of an array
+        depth, elem, line_no, c = 0, 0, i, col - 1 + m.end()
+        started = False
+        while line_no < len(lines):
+            s = lines[line_no]
+            while c < len(s):
+                ch = s[c]
+                if ch in "\"'":
+                    end = s.find(ch, c + 1)
+                    c = len(s) if end < 0 else end + 1
+                    continue
+                if ch == "#":
+                    break
+                if ch in "[{":
+                    if ch == "{" and depth == 1:
+                        pos[key + (elem,)] = (line_no + 1, c + 1)
+                        elem += 1
+                    depth += 1
+                    started = True
+                elif ch in "]}":
+                    depth -= 1
+                c += 1
+            if not started or depth <= 0:
+                break
+            line_no += 1
+            c = 0
+        i = line_no + 1
+    return pos
+
+
+# ---------------------------------------------------------------------- model
+
+@dataclass
+class IoRange:
+    kind: RangeKind
+    address: int
+    count: int
+    image: int                       # first bit index (8*byte + bit) or word
+    safe: list[int] = field(default_factory=list)
+
+    def spec(self) -> str:
+        text = f"{self.kind.spec}={self.address}:{self.count}:{self.image}"
+        if self.kind.output and any(self.safe):
+            text += ":" + ",".join(str(v) for v in self.safe)
+        return text
+
+
+@dataclass
+class IoDevice:
+    index: int                       # 1-based, as the log and the diagnostics say
+    name: str
+    tcp: str | None = None
+    port: int = 502
+    rtu: str | None = None
+    baud: int = 19200
+    parity: str = "none"
+    data_bits: int = 8
+    stop_bits: int = 1
+    unit: int = 1
+    poll_ms: int = 10
+    timeout_ms: int = 50
+    max_age_ms: int | None = None
+    backoff_ms: tuple[int, int] = (100, 2000)
+    status_input: int | None = None  # bit index
+    ranges: list[IoRange] = field(default_factory=list)
+
+    def spec(self) -> str:
+        """The runtime's --io-device argument."""
+        parts = [f"name={self.name}"]
+        if self.tcp is not None:
+            parts.append(f"tcp={self.tcp}:{self.port}")
+        else:
+            parts += [f"rtu={self.rtu}", f"baud={self.baud}", f"parity={PARITY[self.parity]}",
+                      f"data={self.data_bits}", f"stop={self.stop_bits}"]
+        parts += [f"unit={self.unit}", f"poll={self.poll_ms}", f"timeout={self.timeout_ms}",
+                  f"age={self.age_ms}", f"backoff={self.backoff_ms[0]}-{self.backoff_ms[1]}"]
+        if self.status_input is not None:
+            parts.append(f"status={self.status_input}")
+        parts += [r.spec() for r in self.ranges]
+        return " ".join(parts)
+
+    @property
+    def age_ms(self) -> int:
+        return self.max_age_ms if self.max_age_ms is not None else 2 * self.poll_ms + self.timeout_ms
+
+
+def parse_location(text: Any, prefix: str, bits: bool) -> int | None:
+    """'%IX3.2' -> 26, '%IW7' -> 7 (prefix '%IX'/'%QX' for bits, '%IW'/'%QW' for words); None if malformed."""
+    if not isinstance(text, str):
+        return None
+    t = text.strip().upper()
+    if not t.startswith(prefix):
+        return None
+    rest = t[len(prefix):]
+    if bits:
+        m = re.fullmatch(r"(\d+)\.([0-7])", rest)
+        return int(m.group(1)) * 8 + int(m.group(2)) if m else None
+    return int(rest) if rest.isdigit() else None
+
+
+def bit_name(prefix: str, bit: int) -> str:
+    return f"{prefix}{bit // 8}.{bit % 8}"
+
+
+class _Checker:
+    def __init__(self, path: Path, text: str) -> None:
+        self.path = path
+        self.pos = locate(text)
+        self.problems: list[str] = []
+
+    def error(self, key: Path_, message: str) -> None:
+        k = key
+        while k and k not in self.pos:
+            k = k[:-1]
+        line, col = self.pos.get(k, (1, 1))
+        self.problems.append(f"{self.path}:{line}:{col}: error: {message}")
+
+    def integer(self, key: Path_, where: str, value: Any, lo: int, hi: int) -> int | None:
+        if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+            self.error(key, f"{where}: expected an integer {lo}..{hi}, got {value!r}")
+            return None
+        return value
+
+
+def check_devices(path: Path, text: str, entries: Any) -> tuple[list[IoDevice], list[str]]:
+    """Check the `[[io.device]]` entries of a run configuration; return the devices and the problems."""
+    ck = _Checker(Path(path), text)
+    devices: list[IoDevice] = []
+    base: Path_ = ("io", "device")
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        ck.error(base, "io.device: write each device as a [[io.device]] table")
+        return [], ck.problems
+    if len(entries) > MAX_DEVICES:
+        ck.error(base + (MAX_DEVICES,), f"at most {MAX_DEVICES} I/O devices")
+    for n, entry in enumerate(entries[:MAX_DEVICES]):
+        dev = _check_device(ck, base + (n,), n + 1, entry)
+        if dev is not None:
+            devices.append(dev)
+    if not ck.problems:
+        _check_overlaps(ck, devices)
+    return devices, ck.problems
+
+
+def _check_device(ck: _Checker, key: Path_, index: int, e: dict) -> IoDevice | None:
+    where = f"[[io.device]] {index}"
+    before = len(ck.problems)
+    for k in e:
+        if k not in DEVICE_KEYS:
+            ck.error(key + (k,), f"{where}: unknown key '{k}' (known: {', '.join(sorted(DEVICE_KEYS))})")
+    name = e.get("name", f"device{index}")
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_\-]{1,31}", name):
+        ck.error(key + ("name",), f"{where}: name must be 1-31 letters, digits, '-' or '_', got {name!r}")
+        name = f"device{index}"
+    dev = IoDevice(index=index, name=name)
+    if ("tcp" in e) == ("rtu" in e):
+        ck.error(key, f"{where}: give exactly one of tcp = \"ADDRESS\" and rtu = \"/dev/SERIAL\"")
+    if "tcp" in e:
+        try:
+            dev.tcp = str(ipaddress.IPv4Address(e["tcp"]))
+        except (ipaddress.AddressValueError, ValueError, TypeError):
+            ck.error(key + ("tcp",), f"{where}: tcp: {e['tcp']!r} is not an IPv4 address")
+        for k in ("baud", "parity", "data_bits", "stop_bits"):
+            if k in e:
+                ck.error(key + (k,), f"{where}: {k} belongs to an rtu device")
+        if "port" in e:
+            dev.port = ck.integer(key + ("port",), f"{where}: port", e["port"], 1, 65535) or 502
+    if "rtu" in e:
+        if "port" in e:
+            ck.error(key + ("port",), f"{where}: port belongs to a tcp device")
+        rtu = e["rtu"]
+        if not isinstance(rtu, str) or not rtu or " " in rtu:
+            ck.error(key + ("rtu",), f"{where}: rtu: expected the serial device's path, got {rtu!r}")
+        elif not os.path.exists(rtu):
+            ck.error(key + ("rtu",), f"{where}: rtu: serial device {rtu} does not exist")
+        else:
+            dev.rtu = rtu
+        if "baud" in e:
+            b = e["baud"]
+            if b not in BAUD_RATES or isinstance(b, bool):
+                ck.error(key + ("baud",), f"{where}: baud: {b!r} is not a rate the serial driver can set "
+                                          f"({', '.join(map(str, BAUD_RATES[3:12]))}, ...)")
+            else:
+                dev.baud = b
+        if "parity" in e:
+            if e["parity"] not in PARITY:
+                ck.error(key + ("parity",), f"{where}: parity: expected \"none\", \"even\" or \"odd\", "
+                                            f"got {e['parity']!r}")
+            else:
+                dev.parity = e["parity"]
+        if "data_bits" in e:
+            dev.data_bits = ck.integer(key + ("data_bits",), f"{where}: data_bits", e["data_bits"], 7, 8) or 8
+        if "stop_bits" in e:
+            dev.stop_bits = ck.integer(key + ("stop_bits",), f"{where}: stop_bits", e["stop_bits"], 1, 2) or 1
+    if "unit" in e:
+        hi = 247 if "rtu" in e else 255
+        dev.unit = ck.integer(key + ("unit",), f"{where}: unit", e["unit"], 1 if "rtu" in e else 0, hi) or 1
+    for k, lo, hi in (("poll_ms", 1, 60000), ("timeout_ms", 1, 60000), ("max_age_ms", 1, 600000)):
+        if k in e:
+            v = ck.integer(key + (k,), f"{where}: {k}", e[k], lo, hi)
+            if v is not None:
+                setattr(dev, k, v)
+    if dev.age_ms < dev.poll_ms:
+        ck.error(key + ("max_age_ms",), f"{where}: max_age_ms ({dev.age_ms}) is shorter than poll_ms "
+                                        f"({dev.poll_ms}): the device would always count as lost")
+    if "backoff_ms" in e:
+        b = e["backoff_ms"]
+        if (not isinstance(b, list) or len(b) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
+                                                                 for v in b) or not 1 <= b[0] <= b[1] <= 600000):
+            ck.error(key + ("backoff_ms",), f"{where}: backoff_ms: expected [FIRST, MAX] in ms, "
+                                            f"1 <= FIRST <= MAX <= 600000, got {b!r}")
+        else:
+            dev.backoff_ms = (b[0], b[1])
+    if "status_input" in e:
+        bit = parse_location(e["status_input"], "%IX", True)
+        if bit is None or bit >= BITS:
+            ck.error(key + ("status_input",), f"{where}: status_input: expected %IXa.b inside "
+                                              f"%IX0.0..%IX99.7, got {e['status_input']!r}")
+        else:
+            dev.status_input = bit
+    for kind in KINDS:
+        if kind.key in e:
+            _check_ranges(ck, key + (kind.key,), where, kind, e[kind.key], dev)
+    if not any(kind.key in e for kind in KINDS):
+        ck.error(key, f"{where}: no ranges: give at least one of {', '.join(k.key for k in KINDS)}")
+    return dev if len(ck.problems) == before else None
+
+
+def _check_ranges(ck: _Checker, key: Path_, where: str, kind: RangeKind, value: Any, dev: IoDevice) -> None:
+    if isinstance(value, dict):
+        value = [value]
+    if not isinstance(value, list):
+        ck.error(key, f"{where}: {kind.key}: expected a list of {{ address, count, "
+                      f"{'from' if kind.output else 'to'} }} tables")
+        return
+    prefix = ("%QX" if kind.bits else "%QW") if kind.output else ("%IX" if kind.bits else "%IW")
+    image_key = "from" if kind.output else "to"
+    limit = BITS if kind.bits else WORDS
+    for i, r in enumerate(value):
+        rk = key + (i,)
+        w = f"{where}: {kind.key}[{i + 1}]"
+        if not isinstance(r, dict):
+            ck.error(rk, f"{w}: expected {{ address = N, count = N, {image_key} = \"{prefix}...\" }}")
+            continue
+        allowed = {"address", "count", image_key} | ({"safe"} if kind.output else set())
+        bad = [k for k in r if k not in allowed]
+        if bad:
+            ck.error(rk, f"{w}: unknown key '{bad[0]}' (known: {', '.join(sorted(allowed))})")
+            continue
+        missing = [k for k in ("address", "count", image_key) if k not in r]
+        if missing:
+            ck.error(rk, f"{w}: {missing[0]} is required")
+            continue
+        address = ck.integer(rk, f"{w}: address", r["address"], 0, 65535)
+        count = ck.integer(rk, f"{w}: count", r["count"], 1, kind.max_count)
+        image = parse_location(r[image_key], prefix, kind.bits)
+        if image is None:
+            example = "%IX0.0" if prefix.endswith("X") else f"{prefix}0"
+            ck.error(rk, f"{w}: {image_key}: expected a location like {example.replace('%IX', prefix)}, "
+                         f"got {r[image_key]!r}")
+            continue
+        if address is None or count is None:
+            continue
+        if address + count > 65536:
+            ck.error(rk, f"{w}: addresses {address}..{address + count - 1} run past the device's 65535")
+            continue
+        if image + count > limit:
+            last = bit_name(prefix, image + count - 1) if kind.bits else f"{prefix}{image + count - 1}"
+            end = bit_name(prefix, limit - 1) if kind.bits else f"{prefix}{limit - 1}"
+            ck.error(rk, f"{w}: {count} values from {r[image_key]} end at {last}, outside the image "
+                         f"(last {end})")
+            continue
+        safe = [0] * count
+        if "safe" in r:
+            s = r["safe"]
+            items = s if isinstance(s, list) else [s]
+            ok_type = (lambda v: isinstance(v, bool)) if kind.bits else \
+                (lambda v: isinstance(v, int) and not isinstance(v, bool) and -32768 <= v <= 65535)
+            if len(items) not in (1, count) or not all(ok_type(v) for v in items):
+                what = "true/false" if kind.bits else "integers -32768..65535"
+                ck.error(rk, f"{w}: safe: one value or {count} values ({what})")
+                continue
+            safe = [int(v) & 0xFFFF for v in (items * count if len(items) == 1 else items)]
+        dev.ranges.append(IoRange(kind, address, count, image, safe))
+
+
+def _check_overlaps(ck: _Checker, devices: list[IoDevice]) -> None:
+    """Two ranges writing one part of the image, two ranges on one table of one device, a status input inside
+    an input range; devices sharing a serial line with different line settings or the same unit."""
+    def area(r: IoRange) -> str:
+        return ("%QX" if r.kind.bits else "%QW") if r.kind.output else ("%IX" if r.kind.bits else "%IW")
+
+    def show(r: IoRange, first: int, last: int) -> str:
+        a = area(r)
+        return f"{bit_name(a, first)}..{bit_name(a, last)}" if r.kind.bits else f"{a}{first}..{a}{last}"
+
+    placed: list[tuple[IoDevice, int, IoRange]] = []
+    for d in devices:
+        for i, r in enumerate(d.ranges):
+            for od, oi, o in placed:
+                if area(o) == area(r) and r.image < o.image + o.count and o.image < r.image + r.count:
+                    ck.error(("io", "device", d.index - 1, r.kind.key, _nth(d, i)),
+                             f"[[io.device]] {d.index}: {r.kind.key} {show(r, r.image, r.image + r.count - 1)} "
+                             f"overlaps {o.kind.key} of device {od.index} "
+                             f"({show(o, o.image, o.image + o.count - 1)})")
+                if (od is d and o.kind.table == r.kind.table and o.kind.output == r.kind.output
+                        and r.address < o.address + o.count and o.address < r.address + r.count):
+                    ck.error(("io", "device", d.index - 1, r.kind.key, _nth(d, i)),
+                             f"[[io.device]] {d.index}: {r.kind.key} addresses {r.address}..{r.address + r.count - 1}"
+                             f" overlap {o.kind.key} {o.address}..{o.address + o.count - 1} on the same device")
+            placed.append((d, i, r))
+    status = {}
+    for d in devices:
+        if d.status_input is None:
+            continue
+        for od, _, o in placed:
+            if area(o) == "%IX" and o.image <= d.status_input < o.image + o.count:
+                ck.error(("io", "device", d.index - 1, "status_input"),
+                         f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} lies in "
+                         f"discrete_inputs of device {od.index}")
+        if d.status_input in status:
+            ck.error(("io", "device", d.index - 1, "status_input"),
+                     f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} is already the "
+                     f"status input of device {status[d.status_input]}")
+        status[d.status_input] = d.index
+    lines: dict[str, IoDevice] = {}
+    for d in devices:
+        if d.rtu is None:
+            continue
+        real = os.path.realpath(d.rtu)
+        first = lines.setdefault(real, d)
+        if first is d:
+            continue
+        line = (first.baud, first.parity, first.data_bits, first.stop_bits, first.timeout_ms)
+        if (d.baud, d.parity, d.data_bits, d.stop_bits, d.timeout_ms) != line:
+            ck.error(("io", "device", d.index - 1, "rtu"),
+                     f"[[io.device]] {d.index}: serial line {d.rtu} is device {first.index}'s: give it the same "
+                     "baud, parity, data_bits, stop_bits and timeout_ms")
+        same_unit = [o.index for o in devices[:d.index - 1]
+                     if o.rtu is not None and os.path.realpath(o.rtu) == real and o.unit == d.unit]
+        if same_unit:
+            ck.error(("io", "device", d.index - 1, "unit"),
+                     f"[[io.device]] {d.index}: unit {d.unit} is already device {same_unit[0]} on serial line {d.rtu}")
+
+
+def _nth(dev: IoDevice, i: int) -> int:
+    """Index of dev.ranges[i] within the list of its own kind (for its position)."""
+    kind = dev.ranges[i].kind
+    return sum(1 for r in dev.ranges[:i] if r.kind is kind)
+
+
+def device_specs(devices: list[IoDevice]) -> list[str]:
+    return [d.spec() for d in devices]

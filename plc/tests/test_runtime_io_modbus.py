@@ -1,0 +1,405 @@
+"""Hardware-in-the-loop tests of `plc run --io modbus`: the real application, its sensors and actuators on a
+remote I/O module played by an independent Modbus stack (pymodbus, runtime_fixtures/io_module.py) with its own
+machine model, over Modbus TCP on loopback and over Modbus RTU through a socat pseudo-terminal pair.  Tool
+changes are driven by `plc host "T<n> M6"` as an integrator would.
+
+Every wait is bounded by a generous time-out (SLOW); no verdict depends on how fast the machine is.  The timing
+figures (comm loss -> outputs safe, sensor -> output latency) are measured by scripts/bench-io-modbus.
+
+A machine is one line of MACHINES: its machine description (configs/machine.toml or an example of
+configs/examples/); the module's mechanics (pockets, pocket codes, direction wiring) are read from it.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("pymodbus", reason="pymodbus is a test dependency (pip install -e 'plc[test]')")
+
+from io_module import COIL_COUNT, DI_COUNT, IoModule, Mechanics, Wiring  # noqa: E402
+from rt_harness import SANITIZE, SANITIZER_ENV, SLOW  # noqa: E402
+
+from plc.host.modbus import ModbusClient  # noqa: E402
+from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS  # noqa: E402
+from plc.host.tags import Tags, load_map  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+MAP_FILE = REPO / "modbus_map" / "map.toml"
+RMAP = load_map(MAP_FILE)
+SIGNALS = {s["name"]: s for s in tomllib.loads(MAP_FILE.read_text())["signal"]}
+FIRST_OUTPUT_COIL = MODULE_OUTPUTS[0]   # the module's coil 0 is the map's coil 16, %QX2.0
+IO_DIAG = 1088                  # input registers of I/O device 1 (runtime.h IO_DIAG_BASE)
+DIAG_STATE, DIAG_GARBAGE, DIAG_EXCEPTIONS = 0, 5, 6
+STATE_OK, STATE_LOST = 2, 3
+REASON_MODULE_1_LOST = -111
+
+# One line per machine; the code-input carousel of configs/examples/ joins here as a second pytest.param.
+MACHINES = [
+    pytest.param("configs/machine.toml", id="default"),
+]
+
+
+def address(name: str) -> int:
+    return SIGNALS[name]["address"]
+
+
+def wiring_for(machine: dict) -> Wiring:
+    """Module wiring from the register map: module input k = discrete input k, module coil k = coil 16 + k."""
+    carousel = machine["carousel"]
+    codes = tuple(address(f"CarouselCode{i}") for i in range(1, carousel.get("code_inputs", 0) + 1)) \
+        if "code" in carousel["inputs"] else ()
+    minus = address("CarouselDirNegative") - FIRST_OUTPUT_COIL \
+        if carousel["outputs"] == "separate" and "CarouselDirNegative" in SIGNALS else None
+    return Wiring(estop_ok=address("EStopOk"), guard_closed=address("GuardDoorClosed"),
+                  air_ok=address("AirPressureOk"), spindle_stopped=address("SpindleStopped"),
+                  pocket=address("CarouselPocket"), home=address("CarouselHome"),
+                  arm_at_forward=address("ArmAtForward"), arm_at_reverse=address("ArmAtReverse"),
+                  collet_opened=address("ColletOpened"), codes=codes,
+                  motor_on=address("CarouselMotorOn") - FIRST_OUTPUT_COIL,
+                  brake_off=address("BrakeOff") - FIRST_OUTPUT_COIL,
+                  arm_forward=address("ArmForward") - FIRST_OUTPUT_COIL,
+                  collet_open=address("ColletOpen") - FIRST_OUTPUT_COIL,
+                  dir_positive=address("CarouselDirPositive") - FIRST_OUTPUT_COIL, dir_negative=minus)
+
+
+def mechanics_for(machine: dict) -> Mechanics:
+    carousel = machine["carousel"]
+    pockets = carousel["pockets"]
+    return Mechanics(pockets=pockets, pocket_codes=tuple(carousel.get("pocket_codes", ())) or tuple(range(1, pockets + 1)))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return str(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return "[" + ", ".join(toml_value(x) for x in v) + "]"
+
+
+INPUT_RANGE = (f'[{{ address = 0, count = {MODULE_INPUTS[1]}, '
+               f'to = "%IX{MODULE_INPUTS[0] // 8}.{MODULE_INPUTS[0] % 8}" }}]')
+OUTPUT_RANGE = (f'[{{ address = 0, count = {MODULE_OUTPUTS[1]}, '
+                f'from = "%QX{MODULE_OUTPUTS[0] // 8}.{MODULE_OUTPUTS[0] % 8}" }}]')
+
+
+def status_input(n: int) -> str:
+    a = SIGNALS[f"IoModule{n}Lost"]["address"]
+    return f"%IX{a // 8}.{a % 8}"
+
+
+def run_config(path: Path, devices: list[dict]) -> Path:
+    """The project's run configuration (host-writable ranges, retained registers) with [[io.device]] tables
+    (values that are inline TOML already, like the ranges, are written as they are)."""
+    base = tomllib.loads((REPO / "configs" / "runtime.toml").read_text())
+    lines = ["[modbus]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("modbus", {}).items()]
+    lines += ["", "[retain]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("retain", {}).items() if k != "file"]
+    lines += ["", "[io]", 'layer = "modbus"']
+    for device in devices:
+        lines += ["", "[[io.device]]"]
+        lines += [f"{k} = {v if isinstance(v, str) and v.startswith('[{') else toml_value(v)}"
+                  for k, v in device.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+class SerialPair:
+    """Two pseudo-terminals joined by socat: the PLC opens one end, the module the other."""
+
+    def __init__(self, tmp: Path):
+        self.plc_end, self.module_end = str(tmp / "plc-tty"), str(tmp / "module-tty")
+        self.proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={self.plc_end}",
+                                      f"pty,raw,echo=0,link={self.module_end}"],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 10 * SLOW
+        while not (os.path.exists(self.plc_end) and os.path.exists(self.module_end)):
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError("socat did not create the pseudo-terminal pair")
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(10)
+
+
+class Plc:
+    """`plc run SOURCES --config CFG --io modbus` on a free port, its log in a file."""
+
+    def __init__(self, tmp: Path, config: Path, sources: Path):
+        self.tmp, self.config, self.sources = tmp, config, sources
+        self.port, self.proc, self.log = free_port(), None, tmp / "plc.log"
+
+    def start(self) -> None:
+        cmd = [sys.executable, "-m", "plc.cli", "run", str(self.sources), "--config", str(self.config),
+               "--io", "modbus", "--port", str(self.port), "--retain", str(self.tmp / "plc.retain"),
+               "--build-dir", str(REPO / "build" / "runtime")] + (["--sanitize"] if SANITIZE else [])
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen(cmd, cwd=REPO / "plc", stdout=log, stderr=subprocess.STDOUT,
+                                         env={**os.environ, **(SANITIZER_ENV if SANITIZE else {})})
+        wait_for(lambda: f"listening on 127.0.0.1:{self.port}" in self.text(), 180 * SLOW,
+                 "plc run listening", lambda: self.proc.poll() is None)
+
+    def text(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(15 * SLOW)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+            # a clean stop (sanitizer builds: no leak, no undefined behaviour) exits 0
+            assert self.proc.returncode == 0, f"plc run exited {self.proc.returncode}:\n{self.text()[-3000:]}"
+
+    def host(self, *words: str) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "plc.cli", "host", "--port", str(self.port), *words]
+        return subprocess.run(cmd, cwd=REPO / "plc", capture_output=True, text=True, timeout=120 * SLOW)
+
+    def read(self, *names: str) -> dict:
+        with ModbusClient("127.0.0.1", self.port) as client:
+            return Tags(RMAP, client).read(*names)
+
+    def device_diag(self) -> list[int]:
+        with ModbusClient("127.0.0.1", self.port) as client:
+            return client.read_input_registers(IO_DIAG, 8)
+
+
+def wait_for(cond, timeout: float, what: str, alive=lambda: True) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return
+        if not alive():
+            raise AssertionError(f"gave up waiting for {what}: the process ended")
+        time.sleep(0.02)
+    raise AssertionError(f"{what}: not within {timeout:.0f} s")
+
+
+def ok(result: subprocess.CompletedProcess, plc: "Plc | None" = None) -> str:
+    log = "\n".join(line for line in plc.text().splitlines() if "I/O device" in line)[-3000:] if plc else ""
+    assert result.returncode == 0, f"exit {result.returncode}\n{result.stdout}\n{result.stderr}\n{log}"
+    return result.stdout
+
+
+def m6_seconds(out: str) -> float:
+    return float(re.search(r"M6: tool \d+ in spindle after ([0-9.]+) s", out).group(1))
+
+
+def sources_for(machine_file: str, tmp: Path) -> Path:
+    """st_src/ as it is for the project's machine; for another machine description a copy of it with that
+    machine's generated FB_MachineConfig."""
+    if machine_file == "configs/machine.toml":
+        return REPO / "st_src"
+    copy = tmp / "st_src"
+    shutil.copytree(REPO / "st_src", copy)
+    out = copy / "app" / "generated" / "FB_MachineConfig.st"
+    ok(subprocess.run([sys.executable, "-m", "plc.cli", "machine", "generate", "--config", str(REPO / machine_file),
+                       "--out", str(out)], cwd=REPO, capture_output=True, text=True, timeout=120 * SLOW))
+    return copy
+
+
+@dataclass
+class Rig:
+    module: IoModule
+    plc: Plc
+    serial: SerialPair | None
+
+    def close(self) -> None:
+        self.plc.stop()
+        self.module.stop()
+        if self.serial:
+            self.serial.close()
+
+
+def make_rig(tmp: Path, transport: str, machine_file: str, units: tuple[int, ...] = (1,)) -> Rig:
+    """The module and `plc run --io modbus`; with several units (RTU), the inputs come from the first unit and
+    the outputs go to the second, two devices on one line."""
+    machine = tomllib.loads((REPO / machine_file).read_text())
+    serial = None
+    if transport == "rtu":
+        if shutil.which("socat") is None:
+            pytest.fail("socat is missing: scripts/setup installs it (the RTU tests need a pseudo-terminal pair)")
+        serial = SerialPair(tmp)
+        module = IoModule(wiring_for(machine), mechanics_for(machine), serial=serial.module_end, units=units).start()
+        link = {"rtu": serial.plc_end, "baud": 115200}
+    else:
+        module = IoModule(wiring_for(machine), mechanics_for(machine), units=units).start()
+        link = {"tcp": "127.0.0.1", "port": module.port}
+    # The age limit and the response time-out are far above any stall of a loaded test machine (the module is
+    # Python, at normal priority), so a verdict does not depend on speed; the age limit stays below the
+    # positioner's pocket time-out (10 s), so a silent module is reported as lost, not as a carousel error.
+    common = {**link, "poll_ms": 5, "timeout_ms": int(min(250 * SLOW, 1000)),
+              "max_age_ms": int(min(1000 * SLOW, 3000)), "backoff_ms": [50, 400]}
+    if len(units) == 1:
+        devices = [{"name": "changer", **common, "unit": units[0], "status_input": status_input(1),
+                    "discrete_inputs": INPUT_RANGE, "coils": OUTPUT_RANGE}]
+    else:
+        devices = [{"name": "sensors", **common, "unit": units[0], "status_input": status_input(1),
+                    "discrete_inputs": INPUT_RANGE},
+                   {"name": "actuators", **common, "unit": units[1], "status_input": status_input(2),
+                    "coils": OUTPUT_RANGE}]
+    plc = Plc(tmp, run_config(tmp / "run.toml", devices), sources_for(machine_file, tmp))
+    try:
+        plc.start()
+    except BaseException:
+        module.stop()
+        if serial:
+            serial.close()
+        raise
+    return Rig(module, plc, serial)
+
+
+# ------------------------------------------------------------------------------------------- tool changes
+
+@pytest.mark.parametrize("machine_file", MACHINES)
+@pytest.mark.parametrize("transport", ["tcp", "rtu"])
+def test_tool_changes_complete_over_modbus(tmp_path, transport, machine_file):
+    rig = make_rig(tmp_path, transport, machine_file)
+    try:
+        values = rig.plc.read("SimulatedPlant", "IoModule1Lost")
+        assert values == {"SimulatedPlant": False, "IoModule1Lost": False}, rig.plc.text()[-2000:]
+        first = ok(rig.plc.host("clear", "T2 M6"), rig.plc)
+        assert first.splitlines()[-1] == "tool 2 in spindle", first
+        second = ok(rig.plc.host("T4 M6"), rig.plc)
+        assert second.splitlines()[-1] == "tool 4 in spindle", second
+        assert rig.plc.read("ToolInSpindle", "FaultReason") == {"ToolInSpindle": 4, "FaultReason": 0}
+        # the module's own machine really moved, and no mechanical mistake happened on it
+        turns = [e for e in rig.module.events if e[1] == "coils" and e[2][rig.module.machine.wiring.motor_on]]
+        assert turns, "the carousel motor was never switched on at the module"
+        assert rig.module.machine.crashes == []
+        assert "): lost:" not in rig.plc.text()
+        print(f"{transport} {machine_file}: M6 T2 (Get Tool) {m6_seconds(first):.2f} s, "
+              f"M6 T2->T4 (Put + Get) {m6_seconds(second):.2f} s")
+    finally:
+        rig.close()
+
+
+def test_two_units_on_one_serial_line_complete_a_change(tmp_path):
+    """RS-485 multi-drop: the sensors on unit 1, the actuators on unit 2, one line, one poll thread."""
+    rig = make_rig(tmp_path, "rtu", "configs/machine.toml", units=(1, 2))
+    try:
+        out = ok(rig.plc.host("clear", "T3 M6"), rig.plc)
+        assert out.splitlines()[-1] == "tool 3 in spindle", out
+        assert rig.plc.read("IoModule1Lost", "IoModule2Lost") == {"IoModule1Lost": False, "IoModule2Lost": False}
+        with ModbusClient("127.0.0.1", rig.plc.port) as client:
+            both = client.read_input_registers(IO_DIAG, 16)
+        assert both[DIAG_STATE] == STATE_OK and both[8 + DIAG_STATE] == STATE_OK, both
+        assert rig.module.machine.crashes == []
+    finally:
+        rig.close()
+
+
+# ------------------------------------------------------------------------------------------- comm faults
+
+@pytest.fixture(scope="module", params=["tcp", "rtu"])
+def fault_rig(request, tmp_path_factory):
+    """One PLC and module per transport for the comm-fault tests (they run in order on it)."""
+    rig = make_rig(tmp_path_factory.mktemp(f"io-modbus-{request.param}"), request.param, "configs/machine.toml")
+    yield rig
+    rig.close()
+
+
+def recover_and_change(rig: Rig, tool: int) -> str:
+    """Module answering; in one `plc host` call (its heartbeat runs all along: a homing the clear starts must not
+    outlive the host): clear, what an interrupted change left to do (home, confirm), then T<tool> M6."""
+    wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
+    state = rig.plc.read("Recovery", "UncertainTool")
+    todo = ["clear"] + (["home"] if state["Recovery"] & 1 else []) \
+        + (["confirm", str(state["UncertainTool"])] if state["Recovery"] & 2 else []) + [f"T{tool} M6"]
+    out = ok(rig.plc.host(*todo), rig.plc)
+    assert out.splitlines()[-1] == f"tool {tool} in spindle", out
+    assert rig.plc.read("Recovery", "FaultReason") == {"Recovery": 0, "FaultReason": 0}
+    return out
+
+
+def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(fault_rig):
+    rig = fault_rig
+    ok(rig.plc.host("clear", "T1 M6"), rig.plc)
+    motor = rig.module.machine.wiring.motor_on
+    result: dict = {}
+    host = threading.Thread(target=lambda: result.update(r=rig.plc.host("T5 M6")))
+    host.start()
+    wait_for(lambda: rig.module.coil("motor_on"), 60 * SLOW, "the carousel turning at the module")
+    silent_at = rig.module.set_mode("silent")
+    host.join(120 * SLOW)
+    r = result["r"]
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "toolchanger error -111" in r.stdout and "tool 5 in spindle" not in r.stdout, r.stdout
+    values = rig.plc.read("IoModule1Lost", "FaultReason", "CarouselMotorOn", "ToolInSpindle")
+    assert values["IoModule1Lost"] is True and values["FaultReason"] == REASON_MODULE_1_LOST
+    assert values["CarouselMotorOn"] is False and values["ToolInSpindle"] != 5
+    m = re.search(r"I/O device 1 \(changer\): lost: .* outputs safe at monotonic ([0-9.]+) s", rig.plc.text())
+    assert m, rig.plc.text()[-3000:]
+    safe_at = float(m.group(1))
+    assert safe_at >= silent_at - 0.001
+    print(f"comm loss -> outputs safe: {1000 * (safe_at - silent_at):.1f} ms after the module went silent "
+          f"(a generous age limit in this test; scripts/bench-io-modbus measures it at 5 ms polls)")
+
+    # The module answers again: the first outputs it receives are safe, and stay so until the fault is cleared.
+    resumed = rig.module.set_mode("normal")
+    wait_for(lambda: rig.module.writes and rig.module.answered > resumed, 30 * SLOW, "a write after resuming")
+    wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
+    time.sleep(0.2)
+    after = [e for e in rig.module.events if e[0] > resumed and e[1] == "coils"]
+    assert all(not e[2][motor] for e in after), after
+    assert not rig.module.coil("motor_on")
+    assert rig.plc.read("FaultReason")["FaultReason"] == REASON_MODULE_1_LOST, "the fault stays until cleared"
+    ok(rig.plc.host("clear"), rig.plc)
+    assert rig.plc.read("FaultReason")["FaultReason"] == 0
+
+
+def test_a_slow_module_still_completes_a_change(fault_rig):
+    rig = fault_rig
+    rig.module.set_mode("normal")
+    losses = rig.plc.text().count("): lost:")
+    rig.module.set_mode("slow", 0.015)          # three poll periods per answer, within the response time-out
+    try:
+        out = recover_and_change(rig, 3)
+        assert rig.plc.device_diag()[DIAG_STATE] == STATE_OK
+        assert rig.plc.text().count("): lost:") == losses, "the slow module was never declared lost"
+        assert rig.module.machine.crashes == []
+        print(f"slow module (15 ms answers): M6 T3 in {m6_seconds(out):.2f} s")
+    finally:
+        rig.module.set_mode("normal")
+
+
+@pytest.mark.parametrize("mode,counter,tool", [("exception", DIAG_EXCEPTIONS, 4), ("garbage", DIAG_GARBAGE, 6)])
+def test_exceptions_or_garbage_are_counted_and_lost_after_the_age_limit(fault_rig, mode, counter, tool):
+    rig = fault_rig
+    rig.module.set_mode("normal")
+    wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
+    lines = rig.plc.text().count("): lost:")
+    before = rig.plc.device_diag()[counter]
+    rig.module.set_mode(mode)
+    wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is True, 30 * SLOW, f"lost after {mode}")
+    diag = rig.plc.device_diag()
+    assert diag[counter] > before and diag[DIAG_STATE] == STATE_LOST, diag
+    wait_for(lambda: rig.plc.read("FaultReason")["FaultReason"] == REASON_MODULE_1_LOST, 10 * SLOW, "the fault")
+    refused = rig.plc.host("clear")
+    assert rig.plc.read("FaultReason")["FaultReason"] == REASON_MODULE_1_LOST, refused.stdout
+    rig.module.set_mode("normal")
+    recover_and_change(rig, tool)
+    assert rig.plc.device_diag()[DIAG_STATE] == STATE_OK
+    # one log line per state change, not one per failed transaction
+    assert rig.plc.text().count("): lost:") == lines + 1
