@@ -6,8 +6,9 @@ changes are driven by `plc host "T<n> M6"` as an integrator would.
 Every wait is bounded by a generous time-out (SLOW); no verdict depends on how fast the machine is.  The timing
 figures (comm loss -> outputs safe, sensor -> output latency) are measured by scripts/bench-io-modbus.
 
-A machine is one line of MACHINES: its machine description (configs/machine.toml or an example of
-configs/examples/); the module's mechanics (pockets, pocket codes, direction wiring) are read from it.
+A machine is one line of MACHINES: the project's machine (default) or an example of configs/examples/ (a
+project copy switched with `plc machine use`); the module's mechanics (pockets, pocket codes, direction
+wiring) are read from it.
 """
 from __future__ import annotations
 
@@ -38,7 +39,16 @@ from plc.host.tags import Tags, load_map  # noqa: E402
 REPO = Path(__file__).resolve().parents[2]
 MAP_FILE = REPO / "modbus_map" / "map.toml"
 RMAP = load_map(MAP_FILE)
-SIGNALS = {s["name"]: s for s in tomllib.loads(MAP_FILE.read_text())["signal"]}
+from machine_project import project_for  # noqa: E402
+
+
+def signals_of(root: Path) -> dict[str, int]:
+    """Signal name -> address in the register map of the project at `root` (its carousel lines come from that
+    project's machine description)."""
+    return {s.name: s.address for s in load_map(root / "modbus_map" / "map.toml").signals}
+
+
+SIGNALS = signals_of(REPO)
 FIRST_OUTPUT_COIL = MODULE_OUTPUTS[0]   # the module's coil 0 is the map's coil 16, %QX2.0
 IO_DIAG = 1088                  # input registers of I/O device 1 (runtime.h IO_DIAG_BASE)
 DIAG_STATE, DIAG_GARBAGE, DIAG_EXCEPTIONS = 0, 5, 6
@@ -47,24 +57,22 @@ REASON_MODULE_1_LOST = -111
 
 # One line per machine; the code-input carousel of configs/examples/ joins here as a second pytest.param.
 MACHINES = [
-    pytest.param("configs/machine.toml", id="default"),
+    pytest.param("default", id="default"),
+    pytest.param("seed-pocket-code", id="seed-pocket-code"),   # a code-input carousel (3 code inputs)
 ]
 
 
-def address(name: str) -> int:
-    return SIGNALS[name]["address"]
-
-
-def wiring_for(machine: dict) -> Wiring:
+def wiring_for(machine: dict, signals: dict[str, int]) -> Wiring:
     """Module wiring from the register map: module input k = discrete input k, module coil k = coil 16 + k."""
+    address = signals.__getitem__
     carousel = machine["carousel"]
     codes = tuple(address(f"CarouselCode{i}") for i in range(1, carousel.get("code_inputs", 0) + 1)) \
         if "code" in carousel["inputs"] else ()
     minus = address("CarouselDirNegative") - FIRST_OUTPUT_COIL \
-        if carousel["outputs"] == "separate" and "CarouselDirNegative" in SIGNALS else None
+        if carousel["outputs"] == "separate" and "CarouselDirNegative" in signals else None
     return Wiring(estop_ok=address("EStopOk"), guard_closed=address("GuardDoorClosed"),
                   air_ok=address("AirPressureOk"), spindle_stopped=address("SpindleStopped"),
-                  pocket=address("CarouselPocket"), home=address("CarouselHome"),
+                  pocket=address("CarouselPocket"), home=signals.get("CarouselHome"),
                   arm_at_forward=address("ArmAtForward"), arm_at_reverse=address("ArmAtReverse"),
                   collet_opened=address("ColletOpened"), codes=codes,
                   motor_on=address("CarouselMotorOn") - FIRST_OUTPUT_COIL,
@@ -103,7 +111,7 @@ OUTPUT_RANGE = (f'[{{ address = 0, count = {MODULE_OUTPUTS[1]}, '
 
 
 def status_input(n: int) -> str:
-    a = SIGNALS[f"IoModule{n}Lost"]["address"]
+    a = SIGNALS[f"IoModule{n}Lost"]
     return f"%IX{a // 8}.{a % 8}"
 
 
@@ -206,17 +214,10 @@ def m6_seconds(out: str) -> float:
     return float(re.search(r"M6: tool \d+ in spindle after ([0-9.]+) s", out).group(1))
 
 
-def sources_for(machine_file: str, tmp: Path) -> Path:
-    """st_src/ as it is for the project's machine; for another machine description a copy of it with that
-    machine's generated FB_MachineConfig."""
-    if machine_file == "configs/machine.toml":
-        return REPO / "st_src"
-    copy = tmp / "st_src"
-    shutil.copytree(REPO / "st_src", copy)
-    out = copy / "app" / "generated" / "FB_MachineConfig.st"
-    ok(subprocess.run([sys.executable, "-m", "plc.cli", "machine", "generate", "--config", str(REPO / machine_file),
-                       "--out", str(out)], cwd=REPO, capture_output=True, text=True, timeout=120 * SLOW))
-    return copy
+def project(machine: str, tmp: Path) -> Path:
+    """The project as it is for the default machine; for an example of configs/examples/ a copy of the project
+    switched to it with `plc machine use` (machine, map, sequences and application regenerated)."""
+    return REPO if machine == "default" else project_for(machine, tmp / "project")
 
 
 @dataclass
@@ -232,19 +233,21 @@ class Rig:
             self.serial.close()
 
 
-def make_rig(tmp: Path, transport: str, machine_file: str, units: tuple[int, ...] = (1,)) -> Rig:
+def make_rig(tmp: Path, transport: str, machine_name: str, units: tuple[int, ...] = (1,)) -> Rig:
     """The module and `plc run --io modbus`; with several units (RTU), the inputs come from the first unit and
     the outputs go to the second, two devices on one line."""
-    machine = tomllib.loads((REPO / machine_file).read_text())
+    root = project(machine_name, tmp)
+    machine = tomllib.loads((root / "configs" / "machine.toml").read_text())
+    wiring = wiring_for(machine, signals_of(root))
     serial = None
     if transport == "rtu":
         if shutil.which("socat") is None:
             pytest.fail("socat is missing: scripts/setup installs it (the RTU tests need a pseudo-terminal pair)")
         serial = SerialPair(tmp)
-        module = IoModule(wiring_for(machine), mechanics_for(machine), serial=serial.module_end, units=units).start()
+        module = IoModule(wiring, mechanics_for(machine), serial=serial.module_end, units=units).start()
         link = {"rtu": serial.plc_end, "baud": 115200}
     else:
-        module = IoModule(wiring_for(machine), mechanics_for(machine), units=units).start()
+        module = IoModule(wiring, mechanics_for(machine), units=units).start()
         link = {"tcp": "127.0.0.1", "port": module.port}
     # The age limit and the response time-out are far above any stall of a loaded test machine (the module is
     # Python, at normal priority), so a verdict does not depend on speed; the age limit stays below the
@@ -259,7 +262,7 @@ def make_rig(tmp: Path, transport: str, machine_file: str, units: tuple[int, ...
                     "discrete_inputs": INPUT_RANGE},
                    {"name": "actuators", **common, "unit": units[1], "status_input": status_input(2),
                     "coils": OUTPUT_RANGE}]
-    plc = Plc(tmp, run_config(tmp / "run.toml", devices), sources_for(machine_file, tmp))
+    plc = Plc(tmp, run_config(tmp / "run.toml", devices), root / "st_src")
     try:
         plc.start()
     except BaseException:
@@ -272,10 +275,10 @@ def make_rig(tmp: Path, transport: str, machine_file: str, units: tuple[int, ...
 
 # ------------------------------------------------------------------------------------------- tool changes
 
-@pytest.mark.parametrize("machine_file", MACHINES)
+@pytest.mark.parametrize("machine", MACHINES)
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
-def test_tool_changes_complete_over_modbus(tmp_path, transport, machine_file):
-    rig = make_rig(tmp_path, transport, machine_file)
+def test_tool_changes_complete_over_modbus(tmp_path, transport, machine):
+    rig = make_rig(tmp_path, transport, machine)
     try:
         values = rig.plc.read("SimulatedPlant", "IoModule1Lost")
         assert values == {"SimulatedPlant": False, "IoModule1Lost": False}, rig.plc.text()[-2000:]
@@ -289,7 +292,7 @@ def test_tool_changes_complete_over_modbus(tmp_path, transport, machine_file):
         assert turns, "the carousel motor was never switched on at the module"
         assert rig.module.machine.crashes == []
         assert "): lost:" not in rig.plc.text()
-        print(f"{transport} {machine_file}: M6 T2 (Get Tool) {m6_seconds(first):.2f} s, "
+        print(f"{transport} {machine}: M6 T2 (Get Tool) {m6_seconds(first):.2f} s, "
               f"M6 T2->T4 (Put + Get) {m6_seconds(second):.2f} s")
     finally:
         rig.close()
@@ -297,7 +300,7 @@ def test_tool_changes_complete_over_modbus(tmp_path, transport, machine_file):
 
 def test_two_units_on_one_serial_line_complete_a_change(tmp_path):
     """RS-485 multi-drop: the sensors on unit 1, the actuators on unit 2, one line, one poll thread."""
-    rig = make_rig(tmp_path, "rtu", "configs/machine.toml", units=(1, 2))
+    rig = make_rig(tmp_path, "rtu", "default", units=(1, 2))
     try:
         out = ok(rig.plc.host("clear", "T3 M6"), rig.plc)
         assert out.splitlines()[-1] == "tool 3 in spindle", out
@@ -315,7 +318,7 @@ def test_two_units_on_one_serial_line_complete_a_change(tmp_path):
 @pytest.fixture(scope="module", params=["tcp", "rtu"])
 def fault_rig(request, tmp_path_factory):
     """One PLC and module per transport for the comm-fault tests (they run in order on it)."""
-    rig = make_rig(tmp_path_factory.mktemp(f"io-modbus-{request.param}"), request.param, "configs/machine.toml")
+    rig = make_rig(tmp_path_factory.mktemp(f"io-modbus-{request.param}"), request.param, "default")
     yield rig
     rig.close()
 

@@ -41,7 +41,7 @@ class Wiring:
     air_ok: int = 2
     spindle_stopped: int = 3
     pocket: int = 16
-    home: int = 17
+    home: int | None = 17                    # None: a carousel without a home input
     arm_at_forward: int = 18
     arm_at_reverse: int = 19
     collet_opened: int = 20
@@ -128,7 +128,8 @@ class Machine:
             di[a] = True
         pocket = self.at_pocket()
         di[w.pocket] = pocket != 0
-        di[w.home] = pocket == 1
+        if w.home is not None:
+            di[w.home] = pocket == 1
         di[w.arm_at_forward] = self.arm >= 1.0
         di[w.arm_at_reverse] = self.arm <= 0.0
         di[w.collet_opened] = self.collet >= 1.0
