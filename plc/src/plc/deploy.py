@@ -179,20 +179,20 @@ def check_bundle(text: str, diags: Diagnostics) -> tuple[int, int]:
 
 def slave_device_locations(root: Path) -> dict[str, str]:
     """Signal name -> its %IX/%QX on OpenPLC when the machine's I/O module is an OpenPLC slave device: the module
-    layout of io_config (inputs 0..31, coils 16..23 of the map) moved to %IX100.0.. / %QX100.0.."""
-    import tomllib
+    layout of io_config (inputs 0..31, coils 16..23 of the map, carousel lines from the machine description
+    included) moved to %IX100.0.. / %QX100.0.."""
+    from .host.tags import load_map
     from .io_config import MODULE_INPUTS, MODULE_OUTPUTS, OPENPLC_SLAVE_FIRST_BYTE
-    data = tomllib.loads((root / "modbus_map" / "map.toml").read_text())
     out = {}
-    for sig in data.get("signal", []):
-        table, direction, a = sig.get("table"), sig.get("direction"), sig.get("address", -1)
-        if direction == "input" and table == "discrete_input" and MODULE_INPUTS[0] <= a < sum(MODULE_INPUTS):
+    for sig in load_map(root / "modbus_map" / "map.toml").signals:
+        a = sig.address
+        if sig.direction == "input" and sig.table == "discrete_input" and MODULE_INPUTS[0] <= a < sum(MODULE_INPUTS):
             k, prefix = a - MODULE_INPUTS[0], "%IX"
-        elif direction == "output" and table == "coil" and MODULE_OUTPUTS[0] <= a < sum(MODULE_OUTPUTS):
+        elif sig.direction == "output" and sig.table == "coil" and MODULE_OUTPUTS[0] <= a < sum(MODULE_OUTPUTS):
             k, prefix = a - MODULE_OUTPUTS[0], "%QX"
         else:
             continue
-        out[sig["name"]] = f"{prefix}{OPENPLC_SLAVE_FIRST_BYTE + k // 8}.{k % 8}"
+        out[sig.name] = f"{prefix}{OPENPLC_SLAVE_FIRST_BYTE + k // 8}.{k % 8}"
     return out
 
 
