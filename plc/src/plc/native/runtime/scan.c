@@ -25,6 +25,7 @@
 #include <time.h>
 
 #include "runtime.h"
+#include "monitor.h"
 
 uint64_t now_ns(void)
 {
@@ -287,6 +288,7 @@ int scan_run(runtime_t *rt)
         pthread_mutex_lock(&rt->lock);
         image_take_host_writes(rt);
         pthread_mutex_unlock(&rt->lock);
+        monitor_after_inputs(rt);
 
         if (rt->state == PLC_STATE_RUNNING) {
             *prog->clock_ns = (int64_t)(tick * prog->base_tick_ns);
@@ -298,6 +300,7 @@ int scan_run(runtime_t *rt)
             else if (rc != 0)
                 enter_fault(rt, rc, tick);
         }
+        monitor_before_outputs(rt);
         if (rt->state != PLC_STATE_RUNNING)
             image_make_outputs_safe(&rt->pimg);
         tick++;
@@ -316,6 +319,7 @@ int scan_run(runtime_t *rt)
         pthread_mutex_unlock(&rt->io_lock);
         if (rt->state == PLC_STATE_RUNNING)
             retain_after_scan(rt, woke);
+        monitor_scan_done(rt);
 
         const uint64_t done = now_ns();
         if (s->scans == 1)      /* upgrades measure the switch-over up to this line (monotonic clock) */
