@@ -28,8 +28,8 @@ Configuration file (every key optional; paths relative to the file's directory):
     interval_ms = 200               # minimum time between two saves
     registers = ["1024-1039"]       # holding registers saved with the RETAIN variables
 
-    [monitor]                       # watch, write and force (plc hmi, plc watch): a Unix socket, mode 0600
-    enabled = true
+    [monitor]                       # watch, write and force (plc monitor, plc hmi): a Unix socket, mode 0600
+    enabled = true                  # the three files default to the retain file's directory (var/)
     socket = "var/plc.monitor"
     token_file = "var/monitor.token"   # created (random, mode 0600) when missing; writes need it
     audit_file = "var/audit.log"       # every write, force and refused token
@@ -193,9 +193,9 @@ class RunConfig:
     status_interval_s: float = 10.0
     watchdog_ms: int = 1000
     monitor: bool = True
-    monitor_socket: Path = DEFAULT_MONITOR_SOCKET
-    token_file: Path = DEFAULT_TOKEN_FILE
-    audit_file: Path = DEFAULT_AUDIT_FILE
+    monitor_socket: Path | None = None               # None: beside the retain file (plc.monitor)
+    token_file: Path | None = None                   # None: beside the retain file (monitor.token)
+    audit_file: Path | None = None                   # None: beside the retain file (audit.log)
     events_file: Path | None = None                  # set by `plc run` from the project's register map
 
 
@@ -365,6 +365,14 @@ def ensure_token(path: Path) -> None:
         f.write(secrets.token_hex(16) + "\n")
 
 
+def monitor_files(cfg: RunConfig) -> tuple[Path, Path, Path]:
+    """The monitor's socket, token and audit files: configured, else beside the retain file."""
+    retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
+    here = retain.parent
+    return (cfg.monitor_socket or here / DEFAULT_MONITOR_SOCKET.name, cfg.token_file or here / DEFAULT_TOKEN_FILE.name,
+            cfg.audit_file or here / DEFAULT_AUDIT_FILE.name)
+
+
 def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
     """The command line of the C runtime for a configuration."""
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
@@ -388,8 +396,8 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
     if cfg.read_only:
         argv.append("--read-only")
     if cfg.monitor:
-        argv += ["--monitor", str(cfg.monitor_socket), "--monitor-token", str(cfg.token_file),
-                 "--audit", str(cfg.audit_file)]
+        sock, token, audit = monitor_files(cfg)
+        argv += ["--monitor", str(sock), "--monitor-token", str(token), "--audit", str(audit)]
     if cfg.events_file is not None:
         argv += ["--events", str(cfg.events_file)]
     return argv
@@ -436,9 +444,10 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     try:
         retain.parent.mkdir(parents=True, exist_ok=True)
         if cfg.monitor:
-            cfg.monitor_socket.parent.mkdir(parents=True, exist_ok=True)
-            cfg.audit_file.parent.mkdir(parents=True, exist_ok=True)
-            ensure_token(cfg.token_file)
+            sock, token, audit = monitor_files(cfg)
+            sock.parent.mkdir(parents=True, exist_ok=True)
+            audit.parent.mkdir(parents=True, exist_ok=True)
+            ensure_token(token)
     except OSError as exc:
         raise ConfigError(f"cannot prepare the run directory (retain file {retain}, monitor files): {exc}") from None
     return runtime_argv(binary, cfg)

@@ -85,7 +85,8 @@ struct events {
     int64_t change_from, change_to;
     bool changed_seen;
 
-    /* at most EV_LINES_PER_S lines a second: a state that flips every scan must not flood the log */
+    /* state and sequence lines: at most EV_LINES_PER_S a second (a state that flips every scan must not
+     * flood the log); faults, E-stop, aborts, the link and tool changes are always told */
     uint64_t window_start;
     unsigned window_lines, suppressed;
 
@@ -349,24 +350,24 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
     }
 
     if (FELL(R_ESTOP_CLOSED))
-        EV_LOG(LOG_WARN, "E-stop: the E-stop chain opened (carousel outputs off)");
+        log_msg(log, LOG_WARN, "E-stop: the E-stop chain opened (carousel outputs off)");
     if (ROSE(R_ESTOP_CLOSED))
-        EV_LOG(LOG_INFO, "E-stop released: the E-stop chain is closed");
+        log_msg(log, LOG_INFO, "E-stop released: the E-stop chain is closed");
     if (FELL(R_HOST_LINK_OK))
-        EV_LOG(LOG_WARN, "host link lost: no heartbeat change from the host");
+        log_msg(log, LOG_WARN, "host link lost: no heartbeat change from the host");
     if (ROSE(R_HOST_LINK_OK))
-        EV_LOG(LOG_INFO, "host link restored");
+        log_msg(log, LOG_INFO, "host link restored");
     if (ROSE(R_EMC_ABORT))
-        EV_LOG(LOG_WARN, "abort from the host: reason %" PRId64 " %s", cur[R_EMC_REASON],
+        log_msg(log, LOG_WARN, "abort from the host: reason %" PRId64 " %s", cur[R_EMC_REASON],
                 cnc_reason(cur[R_EMC_REASON]));
 
     if (ROSE(R_TOOL_PREPARE)) {
         ev->prepare_at = now;
-        EV_LOG(LOG_INFO, "prepare tool %" PRId64 " (pocket %" PRId64 ") requested", cur[R_PREP_NUMBER],
+        log_msg(log, LOG_INFO, "prepare tool %" PRId64 " (pocket %" PRId64 ") requested", cur[R_PREP_NUMBER],
                 cur[R_PREP_POCKET]);
     }
     if (ROSE(R_TOOL_PREPARED) && ev->prepare_at)
-        EV_LOG(LOG_INFO, "prepare tool %" PRId64 " done in %.3f s", cur[R_PREP_NUMBER],
+        log_msg(log, LOG_INFO, "prepare tool %" PRId64 " done in %.3f s", cur[R_PREP_NUMBER],
                 (double)(now - ev->prepare_at) / 1e9);
 
     if (ROSE(R_TOOL_CHANGE)) {
@@ -374,16 +375,16 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
         ev->changed_seen = false;
         ev->change_from = cur[R_TOOL_IN_SPINDLE];
         ev->change_to = HAS(R_PREP_NUMBER) ? cur[R_PREP_NUMBER] : cur[R_TOOL_NUMBER];   /* M6 loads the prepared tool */
-        EV_LOG(LOG_INFO, "tool change T%" PRId64 " -> T%" PRId64 " requested", ev->change_from, ev->change_to);
+        log_msg(log, LOG_INFO, "tool change T%" PRId64 " -> T%" PRId64 " requested", ev->change_from, ev->change_to);
     }
     if (ROSE(R_TOOL_CHANGED) && ev->change_at) {
         ev->changed_seen = true;
-        EV_LOG(LOG_INFO, "tool change T%" PRId64 " -> T%" PRId64 " done in %.3f s", ev->change_from,
+        log_msg(log, LOG_INFO, "tool change T%" PRId64 " -> T%" PRId64 " done in %.3f s", ev->change_from,
                 cur[R_TOOL_IN_SPINDLE], (double)(now - ev->change_at) / 1e9);
     }
     if (FELL(R_TOOL_CHANGE) && ev->change_at) {
         if (!ev->changed_seen)
-            EV_LOG(LOG_WARN, "tool change T%" PRId64 " -> T%" PRId64 " ended without completion after %.3f s"
+            log_msg(log, LOG_WARN, "tool change T%" PRId64 " -> T%" PRId64 " ended without completion after %.3f s"
                     " (tool %" PRId64 " in the spindle)", ev->change_from, ev->change_to,
                     (double)(now - ev->change_at) / 1e9, cur[R_TOOL_IN_SPINDLE]);
         ev->change_at = 0;
@@ -392,11 +393,11 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
     if (CHANGED(R_FAULT_REASON)) {
         if (ev->prev[R_FAULT_REASON]) {
             const reason_t *was = reason_of(ev, ev->prev[R_FAULT_REASON]);
-            EV_LOG(LOG_INFO, "fault %" PRId64 " %s cleared", ev->prev[R_FAULT_REASON], was ? was->name : "?");
+            log_msg(log, LOG_INFO, "fault %" PRId64 " %s cleared", ev->prev[R_FAULT_REASON], was ? was->name : "?");
         }
         if (cur[R_FAULT_REASON]) {
             const reason_t *rs = reason_of(ev, cur[R_FAULT_REASON]);
-            EV_LOG(LOG_ERROR, "fault %" PRId64 " %s raised: %s", cur[R_FAULT_REASON], rs ? rs->name : "?",
+            log_msg(log, LOG_ERROR, "fault %" PRId64 " %s raised: %s", cur[R_FAULT_REASON], rs ? rs->name : "?",
                     rs ? rs->text : "(not in reason_codes.toml)");
         }
     }

@@ -425,8 +425,9 @@ int main(int argc, char **argv)
 
     if (events_open(&rt, rt.opt.events_path, &rt.events) != 0)
         goto out_retain;
-    if (monitor_start(&rt, &rt.monitor) != 0)
-        goto out_retain;
+    if (monitor_start(&rt, &rt.monitor) != 0)      /* watching is a comfort: the PLC runs without it */
+        log_msg(rt.log, LOG_WARN, "monitor: not available (the reason is above); the PLC runs without "
+                "watch and force");
     if (modbus_server_start(&rt, &rt.server) != 0)
         goto out_retain;
 
