@@ -39,6 +39,7 @@ ALARM_KEEP = 500                 # alarms kept in the history file
 POST_RATE = 20.0                 # requests a second per client address (bursts of POST_BURST)
 POST_BURST = 40.0
 WATCH_MAX = 32
+COUNTER_PUSH_S = 0.25            # pushes when only counters and heartbeats moved
 
 
 @dataclass
@@ -109,8 +110,11 @@ class Hub:
 
     # ------------------------------------------------------------- state --
     def apply(self, values: dict, diag: dict | None) -> bool:
+        """Take one poll; True when the pages must hear of it now (a signal changed that is not a counter)."""
         now = time.monotonic()
-        changed = values != self.values or (diag or {}).get("scan_count") != (self.diag or {}).get("scan_count")
+        noisy = {self.info.rmap.link.plc_alive, self.info.rmap.link.host_heartbeat, "PlcHeartbeat", "ScanCount"}
+        changed = any(values.get(k) != self.values.get(k) for k in values if k not in noisy) \
+            or set(values) != set(self.values)
         old_fault = int(self.values.get("FaultReason", 0) or 0)
         new_fault = int(values.get("FaultReason", 0) or 0)
         if self.values and old_fault != new_fault or (not self.values and new_fault and not any(
@@ -181,7 +185,7 @@ async def poll_plc(hub: Hub) -> None:
     client = None
     tags = None
     want_diag = True
-    last_diag = 0.0
+    last_diag = last_push = 0.0
     while True:
         t0 = time.monotonic()
         try:
@@ -195,7 +199,9 @@ async def poll_plc(hub: Hub) -> None:
                 last_diag = t0
                 want_diag = diag is not None or hub.diag is not None
             hub.plc_error = ""
-            if hub.apply(values, diag if diag_due else hub.diag):
+            # a real change goes out at once; counters and heartbeats alone 4 times a second
+            if hub.apply(values, diag if diag_due else hub.diag) or t0 - last_push >= COUNTER_PUSH_S:
+                last_push = t0
                 await broadcast(hub)
         except (LinkError, ModbusException, OSError) as exc:
             if client is not None:
