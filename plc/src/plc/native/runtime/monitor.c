@@ -7,8 +7,9 @@
  *
  *   hello                      program, scan period, scans, whether writes are allowed
  *   list [PREFIX]              every variable (path, type, constant, retain) and located variable
- *   read PATH...               values of one scan: {"ok":true,"scan":N,"values":{PATH:VALUE,...}}
- *   sub MS PATH...             every MS ms (10..10000) a line {"sub":ID,"scan":N,"values":{...}}
+ *   read PATH...               values of one scan: {"ok":true,"values":{PATH:VALUE,...},"scan":N}
+ *   sub MS PATH...             every MS ms (10..10000) a line {"sub":ID,"values":{...},"scan":N}
+ *                              (no "ok" key: that tells it from an answer)
  *   unsub ID
  *   auth TOKEN                 unlocks the writes below for this connection
  *   write PATH VALUE           set once, before the next scan's program
