@@ -107,3 +107,35 @@ def test_the_page_refuses_commands_without_the_right_token_bad_json_and_floods(t
         finally:
             await client.close()
     asyncio.run(run())
+
+
+def test_plc_run_puts_the_monitor_files_beside_the_retain_file_and_makes_a_private_token(tmp_path):
+    import os
+    from plc import runtime
+    cfg = runtime.RunConfig(retain_file=tmp_path / "var" / "plc.retain")
+    cfg.events_file = tmp_path / "events.txt"
+    argv = runtime.runtime_argv(Path("/bin/true"), cfg)
+    at = {argv[i]: argv[i + 1] for i in range(len(argv) - 1) if argv[i].startswith("--")}
+    assert at["--monitor"] == str(tmp_path / "var" / "plc.monitor")
+    assert at["--monitor-token"] == str(tmp_path / "var" / "monitor.token")
+    assert at["--audit"] == str(tmp_path / "var" / "audit.log")
+    assert at["--events"] == str(tmp_path / "events.txt")
+    runtime.ensure_token(tmp_path / "var" / "monitor.token")
+    token = (tmp_path / "var" / "monitor.token").read_text().strip()
+    assert len(token) >= 32 and oct(os.stat(tmp_path / "var" / "monitor.token").st_mode & 0o777) == "0o600"
+    runtime.ensure_token(tmp_path / "var" / "monitor.token")      # kept, not replaced
+    assert (tmp_path / "var" / "monitor.token").read_text().strip() == token
+    cfg.monitor = False
+    assert "--monitor" not in runtime.runtime_argv(Path("/bin/true"), cfg)
+
+
+def test_the_run_configuration_reads_the_monitor_section(tmp_path):
+    import pytest
+    from plc import runtime
+    f = tmp_path / "run.toml"
+    f.write_text('[monitor]\nenabled = true\nsocket = "run/m.sock"\n')
+    cfg = runtime.load_config(f)
+    assert cfg.monitor and cfg.monitor_socket == tmp_path / "run" / "m.sock"
+    f.write_text('[monitor]\nsocket = 3\n')
+    with pytest.raises(runtime.ConfigError, match=r"\[monitor\] socket: expected a file name"):
+        runtime.load_config(f)

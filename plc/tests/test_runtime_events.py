@@ -74,6 +74,9 @@ def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app,
                 rt.wait_for(r"E-stop released: the E-stop chain is closed")
             assert session.clear().ok
             rt.wait_for(r"fault -101 ESTOP cleared")
+            assert session.home().ok
+            rt.wait_for(r"homing started")
+            rt.wait_for(r"homing ended: carousel homed, pocket \d+ at the change position")
 
             session.abort(8)
             rt.wait_for(r"warning: abort from the host: reason 8 TASK_ABORT")

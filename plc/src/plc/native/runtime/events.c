@@ -405,6 +405,14 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
         const char *from = state_label(ev, R_CHANGER_STATE, ev->prev[R_CHANGER_STATE], a, sizeof a);
         const char *to = state_label(ev, R_CHANGER_STATE, cur[R_CHANGER_STATE], b, sizeof b);
         EV_LOG(LOG_INFO, "changer %s -> %s", from, to);
+        /* homing by the state's name (the map gives E_AtcState's names): always told */
+        bool was = strcasestr(from, "homing") != NULL, is = strcasestr(to, "homing") != NULL;
+        if (is && !was)
+            log_msg(log, LOG_INFO, "homing started");
+        if (was && !is)
+            log_msg(log, HAS(R_CAROUSEL_HOMED) && !cur[R_CAROUSEL_HOMED] ? LOG_WARN : LOG_INFO,
+                    "homing ended: carousel %s, pocket %" PRId64 " at the change position",
+                    HAS(R_CAROUSEL_HOMED) && !cur[R_CAROUSEL_HOMED] ? "NOT homed" : "homed", cur[R_CURRENT_POCKET]);
     }
     if (ROSE(R_CAROUSEL_HOMED))
         EV_LOG(LOG_INFO, "homing done: carousel homed, pocket %" PRId64 " at the change position",
