@@ -39,6 +39,7 @@ ALARM_KEEP = 500                 # alarms kept in the history file
 POST_RATE = 20.0                 # requests a second per client address (bursts of POST_BURST)
 POST_BURST = 40.0
 WATCH_MAX = 32
+BIT_GAP = 512                    # one coil and one discrete-input read per poll (a few hundred bits each)
 COUNTER_PUSH_S = 0.25            # pushes when only counters and heartbeats moved
 
 
@@ -50,7 +51,7 @@ class Options:
     monitor_socket: Path | None = None
     token_file: Path | None = None
     alarms: Path = Path("var/alarms.jsonl")
-    poll_ms: int = 25
+    poll_ms: int = 20
     pockets: int | None = None
 
 
@@ -74,6 +75,7 @@ class Hub:
     seq: int = 0
     plc_error: str = ""
     changed_at: float = 0.0                          # monotonic time of the poll that saw the last change
+    polled_at: float = 0.0                           # wall time when the last poll's answers were in
     _beats: dict = field(default_factory=dict)
     _buckets: dict = field(default_factory=dict)
 
@@ -135,7 +137,7 @@ class Hub:
         return {"t": "state", "seq": self.seq, "values": self.values, "diag": self.diag, "heartbeat_age_ms": self.link,
                 "fault": self.info.reason(fault) if fault else None, "alarms": self.alarms[-20:],
                 "watch": self.watch, "watch_error": self.watch_error, "forces": self.forces, "scan": self.scan,
-                "plc_error": self.plc_error, "server_ms": time.monotonic() * 1000}
+                "plc_error": self.plc_error, "polled_at_ms": self.polled_at * 1000}
 
     # ------------------------------------------------------------ guards --
     def allow(self, peer: str) -> bool:
@@ -192,9 +194,10 @@ async def poll_plc(hub: Hub) -> None:
             if client is None:
                 client = ModbusClient(hub.opts.plc_host, hub.opts.plc_port, unit=hub.info.rmap.linuxcnc.slave_id)
                 await loop.run_in_executor(None, client.connect)
-                tags = Tags(hub.info.rmap, client)
+                tags = Tags(hub.info.rmap, client, bit_gap=BIT_GAP)
             diag_due = want_diag and t0 - last_diag >= 0.5
             values, diag = await loop.run_in_executor(None, _read_all, tags, names, client, diag_due)
+            hub.polled_at = time.time()
             if diag_due:
                 last_diag = t0
                 want_diag = diag is not None or hub.diag is not None
@@ -468,7 +471,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "absent: read-only")
     p.add_argument("--alarms", type=Path, default=Path("var/alarms.jsonl"), metavar="FILE",
                    help="alarm history file (default var/alarms.jsonl)")
-    p.add_argument("--poll-ms", type=int, default=25, metavar="MS", help="Modbus poll period (default 25)")
+    p.add_argument("--poll-ms", type=int, default=20, metavar="MS", help="Modbus poll period (default 20)")
     p.add_argument("--pockets", type=int, default=None, help="pockets drawn (default: configs/machine.toml)")
     return p
 
