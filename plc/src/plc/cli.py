@@ -89,6 +89,7 @@ def cmd_run(args) -> int:
         raise UserError("the sources have no CONFIGURATION: nothing to run")
     args.paths = paths
     args.config = run_configuration(args, root)
+    args.events_file = _events_file(root, Path(args.build_dir)) if in_project else None
     c_file = Path(args.build_dir) / "program" / "program.c"
     c_file.parent.mkdir(parents=True, exist_ok=True)
     if not c_file.exists() or c_file.read_text() != res.c_text:
@@ -97,6 +98,25 @@ def cmd_run(args) -> int:
         return runtime.run_command(args, c_file)
     except (runtime.ConfigError, runtime.RuntimeBuildError) as e:
         raise UserError(str(e)) from None
+
+
+def _events_file(root: Path, build_dir: Path) -> Path | None:
+    """The runtime's --events description, from the project's register map (None when it cannot be read)."""
+    from .hmi import mapinfo
+    from .host.tags import MapError
+    map_path = root / "modbus_map" / "map.toml"
+    if not map_path.is_file():
+        return None
+    try:
+        text = mapinfo.events_description(mapinfo.load(map_path))
+    except MapError as e:
+        print(f"plc run: no application events (the register map has errors):\n{e}", file=sys.stderr)
+        return None
+    out = build_dir / "events.txt"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not out.exists() or out.read_text() != text:
+        out.write_text(text)
+    return out
 
 
 def cmd_retain_show(args) -> int:
@@ -165,6 +185,11 @@ def parser() -> argparse.ArgumentParser:
     sub.add_parser("host", help="CNC host client: plc host \"T5 M6\" (plc host --help)", add_help=False)
     sub.add_parser("deploy", help="bundle for OpenPLC (plc deploy openplc), install and upgrade our soft-PLC as a "
                    "systemd service (plc deploy service|upgrade|rollback)", add_help=False)
+    sub.add_parser("status", help="the soft-PLC's diagnostic block: state, scan times, Modbus counters "
+                   "(plc status --help)", add_help=False)
+    sub.add_parser("monitor", help="watch, write and force variables of the running PLC (plc monitor --help)",
+                   add_help=False)
+    sub.add_parser("hmi", help="the live toolchanger page in a browser (plc hmi --help)", add_help=False)
     sub.add_parser("import", help="PLCopen XML to ST files: plc import plcopen FILE.xml --out DIR", add_help=False)
     sub.add_parser("export", help="ST project to PLCopen XML: plc export plcopen --out FILE.xml", add_help=False)
     return ap
@@ -172,7 +197,8 @@ def parser() -> argparse.ArgumentParser:
 
 # Subcommands with their own argument parsers (each module has main(argv) -> int).
 DELEGATED = {"seq": ".seq.cli", "map": ".map.cli", "host": ".host.cli", "deploy": ".deploy",
-             "import": ".plcopen.importer", "export": ".plcopen.exporter"}
+             "import": ".plcopen.importer", "export": ".plcopen.exporter",
+             "status": ".hmi.status", "monitor": ".hmi.cli", "hmi": ".hmi.server"}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,6 +29,12 @@ Configuration file (every key optional; paths relative to the file's directory):
     interval_ms = 200               # minimum time between two saves
     registers = ["1024-1039"]       # holding registers saved with the RETAIN variables
 
+    [monitor]                       # watch, write and force (plc monitor, plc hmi): a Unix socket, mode 0600
+    enabled = true                  # the three files default to the retain file's directory (var/)
+    socket = "var/plc.monitor"
+    token_file = "var/monitor.token"   # created (random, mode 0600) when missing; writes need it
+    audit_file = "var/audit.log"       # every write, force and refused token
+
     [scan]
     realtime = true                 # ask for SCHED_FIFO
     rt_priority = 50
@@ -61,6 +67,9 @@ HOLDING_REGISTERS = 8192    # %QW, %MW, %MD, %ML
 DEFAULT_PORT = 5020
 DEFAULT_RETAIN_FILE = Path("var") / "plc.retain"
 DEFAULT_BUILD_DIR = Path("build") / "runtime"
+DEFAULT_MONITOR_SOCKET = Path("var") / "plc.monitor"
+DEFAULT_TOKEN_FILE = Path("var") / "monitor.token"
+DEFAULT_AUDIT_FILE = Path("var") / "audit.log"
 
 WARNINGS = ["-std=c11", "-Wall", "-Wextra", "-Werror"]
 OPTIMISE = ["-O2", "-g"]
@@ -188,6 +197,11 @@ class RunConfig:
     rt_priority: int = 50
     status_interval_s: float = 10.0
     watchdog_ms: int = 1000
+    monitor: bool = True
+    monitor_socket: Path | None = None               # None: beside the retain file (plc.monitor)
+    token_file: Path | None = None                   # None: beside the retain file (monitor.token)
+    audit_file: Path | None = None                   # None: beside the retain file (audit.log)
+    events_file: Path | None = None                  # set by `plc run` from the project's register map
 
 
 _KEYS = {
@@ -196,6 +210,7 @@ _KEYS = {
     "io": {"layer", "device"},
     "retain": {"file", "interval_ms", "registers"},
     "scan": {"realtime", "rt_priority", "status_interval_s", "watchdog_ms"},
+    "monitor": {"enabled", "socket", "token_file", "audit_file"},
 }
 
 
@@ -339,7 +354,37 @@ def load_config(path: Path) -> RunConfig:
         cfg.status_interval_s = float(value)
     if "watchdog_ms" in scan:
         cfg.watchdog_ms = _check_int(where("scan", "watchdog_ms"), scan["watchdog_ms"], 0, 3600000)
+
+    monitor = data.get("monitor", {})
+    if "enabled" in monitor:
+        cfg.monitor = _check_bool(where("monitor", "enabled"), monitor["enabled"])
+    for key, attr in (("socket", "monitor_socket"), ("token_file", "token_file"), ("audit_file", "audit_file")):
+        if key in monitor:
+            if not isinstance(monitor[key], str) or not monitor[key]:
+                raise ConfigError(f"{where('monitor', key)}: expected a file name")
+            value = Path(monitor[key])
+            setattr(cfg, attr, value if value.is_absolute() else path.parent / value)
     return cfg
+
+
+def ensure_token(path: Path) -> None:
+    """Create the monitor token file (random, mode 0600) when it does not exist yet."""
+    import secrets
+    path = Path(path)
+    if path.exists():
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(secrets.token_hex(16) + "\n")
+
+
+def monitor_files(cfg: RunConfig) -> tuple[Path, Path, Path]:
+    """The monitor's socket, token and audit files: configured, else beside the retain file."""
+    retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
+    here = retain.parent
+    return (cfg.monitor_socket or here / DEFAULT_MONITOR_SOCKET.name, cfg.token_file or here / DEFAULT_TOKEN_FILE.name,
+            cfg.audit_file or here / DEFAULT_AUDIT_FILE.name)
 
 
 def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
@@ -367,6 +412,11 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
     if cfg.io == "modbus":
         for spec in cfg.io_devices:
             argv += ["--io-device", spec]
+    if cfg.monitor:
+        sock, token, audit = monitor_files(cfg)
+        argv += ["--monitor", str(sock), "--monitor-token", str(token), "--audit", str(audit)]
+    if cfg.events_file is not None:
+        argv += ["--events", str(cfg.events_file)]
     return argv
 
 
@@ -383,6 +433,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                         help="serve reads only: every Modbus write is answered with exception 01")
     parser.add_argument("--retain", type=Path, metavar="FILE",
                         help=f"file keeping RETAIN data (default {DEFAULT_RETAIN_FILE})")
+    parser.add_argument("--no-monitor", action="store_true",
+                        help="no monitoring channel (watch, write, force; plc hmi's watch panel)")
     parser.add_argument("--sanitize", action="store_true",
                         help="run an AddressSanitizer/UBSan build of the runtime")
     parser.add_argument("--build-dir", type=Path, default=DEFAULT_BUILD_DIR, metavar="DIR",
@@ -405,12 +457,20 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
         cfg.read_only = True
     if args.retain is not None:
         cfg.retain_file = args.retain
+    if getattr(args, "no_monitor", False):
+        cfg.monitor = False
+    cfg.events_file = getattr(args, "events_file", None)
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
     binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize)
     try:
         retain.parent.mkdir(parents=True, exist_ok=True)
+        if cfg.monitor:
+            sock, token, audit = monitor_files(cfg)
+            sock.parent.mkdir(parents=True, exist_ok=True)
+            audit.parent.mkdir(parents=True, exist_ok=True)
+            ensure_token(token)
     except OSError as exc:
-        raise ConfigError(f"cannot create the directory of the retain file {retain}: {exc}") from None
+        raise ConfigError(f"cannot prepare the run directory (retain file {retain}, monitor files): {exc}") from None
     return runtime_argv(binary, cfg)
 
 

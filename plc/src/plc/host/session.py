@@ -79,6 +79,7 @@ class Session:
     _thread: threading.Thread | None = None
     _alive: tuple = ()
     _alive_at: float = 0.0
+    _names: dict | None = None          # signal -> value -> name (loaded on the first status)
 
     def __post_init__(self) -> None:
         self.tags = Tags(self.rmap, self.client)
@@ -385,6 +386,20 @@ class Session:
         return Outcome(True, f"confirm: tool {self.tool_number} in the spindle"
                        + ("" if tool else f", tool {uncertain} in its pocket"))
 
+    def _named(self, signal: str, s: dict) -> str:
+        """A coded signal's value with its name from the map ("4 AtcPutting")."""
+        if signal not in s:
+            return "-"
+        if self._names is None:
+            from ..hmi.mapinfo import load
+            try:
+                self._names = load(self.rmap.path).states
+            except Exception:          # names are a comfort: a map that loads here always has them
+                self._names = {}
+        value = s[signal]
+        name = self._names.get(signal, {}).get(int(value))
+        return f"{value} {name}" if name else f"{value}"
+
     def status(self) -> list[str]:
         s = self.poll()
         names = {r.code: r.name for r in self.rmap.reasons}
@@ -393,8 +408,14 @@ class Session:
             f"{s.get('CurrentPocket')}",
             f"PlcReady {s.get('PlcReady')}  HostLinkOk {s.get('HostLinkOk')}  CarouselHomed {s.get('CarouselHomed')}  "
             f"ChangerBusy {s.get('ChangerBusy')}",
-            f"IovState {s.get('IovState')}  ChangerState {s.get('ChangerState')}",
+            f"IovState {self._named('IovState', s)}  ChangerState {self._named('ChangerState', s)}",
         ]
+        seq = {n: v for n, v in self.tags.read(*[n for n in ("SeqKind", "SeqStep", "SeqLine")
+                                                  if self.tags.has(n)]).items()}
+        if seq:
+            kind = int(seq.get("SeqKind", 0))
+            lines.append(f"sequence {self._named('SeqKind', seq)}" + (
+                f", step {seq.get('SeqStep')}, source line {seq.get('SeqLine')}" if kind else " (none running)"))
         recovery = int(s.get("Recovery", 0))
         if recovery:
             todo = [t for bit, t in ((RECOVERY_HOME, "home the changer"), (RECOVERY_CONFIRM, "confirm the tool "

@@ -78,9 +78,10 @@ class _Run:
 class Tags:
     """The register map's signals on one Modbus connection."""
 
-    def __init__(self, rmap: RegisterMap, client: ModbusClient):
+    def __init__(self, rmap: RegisterMap, client: ModbusClient, bit_gap: int = READ_GAP):
         self.rmap = rmap
         self.client = client
+        self.bit_gap = bit_gap                      # unused bits a coil/discrete read may span (fewer requests)
         self._plans: dict[tuple[str, ...], list[_Run]] = {}
         self._owned: dict[int, bool] = {}           # coil address -> the value this host wrote last
 
@@ -100,9 +101,11 @@ class Tags:
         sigs = sorted((self.signal(n) for n in names), key=lambda s: (ORDER[s.table], s.address))
         runs: list[_Run] = []
         for sig in sigs:
-            limit = MAX_BITS if sig.table in ("coil", "discrete_input") else MAX_REGISTERS
+            bits = sig.table in ("coil", "discrete_input")
+            limit = MAX_BITS if bits else MAX_REGISTERS
+            gap = self.bit_gap if bits else READ_GAP
             run = runs[-1] if runs else None
-            if run and run.table == sig.table and sig.address - run.last - 1 <= READ_GAP \
+            if run and run.table == sig.table and sig.address - run.last - 1 <= gap \
                     and sig.last - run.first < limit:
                 run.last = max(run.last, sig.last)
                 run.signals.append(sig)

@@ -103,6 +103,8 @@ class Reason:
     error_id: int | None = None # F_RotaryErrorId of that value
     st_constant: str = ""       # "POU.NAME": a VAR CONSTANT of st_src/ that must equal code
     st_case: str = ""           # "F_Function:EnumValue": a CASE mapping of st_src/ that must give code
+    cause: str = ""             # what usually leads to it (the toolchanger page shows it)
+    remedy: str = ""            # what the operator does about it
 
 
 @dataclass
@@ -181,7 +183,7 @@ _SIGNAL_KEYS = {
 }
 _REQUIRED = ("name", "table", "address", "type", "direction", "description")
 _REASON_KEYS = {"code": int, "name": str, "severity": str, "text": str, "source": str, "rotary_error": str,
-                "error_id": int, "st_constant": str, "st_case": str}
+                "error_id": int, "st_constant": str, "st_case": str, "cause": str, "remedy": str}
 _SECTIONS = {
     "map": {"program": str, "program_file": str, "configuration": str, "resource": str, "reason_codes": str,
             "machine": str, "application": str, "instance": str},
@@ -391,7 +393,8 @@ def _load_reasons(rmap: RegisterMap, path: Path, diags: Diagnostics) -> None:
                                        severity=table["severity"], text=table["text"],
                                        source=table.get("source", ""), rotary_error=table.get("rotary_error", ""),
                                        error_id=table.get("error_id"), st_constant=table.get("st_constant", ""),
-                                       st_case=table.get("st_case", "")))
+                                       st_case=table.get("st_case", ""), cause=table.get("cause", ""),
+                                       remedy=table.get("remedy", "")))
 
 
 def reason_order(reason: Reason) -> tuple[int, int]:

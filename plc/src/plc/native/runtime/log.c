@@ -27,6 +27,7 @@
 #include <unistd.h>
 
 #include "runtime.h"
+#include "monitor.h"
 
 #define LOG_SLOTS 256
 #define LOG_LINE 512
@@ -87,9 +88,13 @@ static void compose_status(log_sink_t *ls, char *out, size_t n)
     unsigned fault = b->input_regs[DIAG_BASE + DIAG_FAULT_KIND], line = b->input_regs[DIAG_BASE + DIAG_FAULT_LINE];
     pthread_mutex_unlock(&rt->lock);
 
+    char app[160];
+    events_status(rt->events, app, sizeof app);
     int k = snprintf(out, n, "%s", state_name(state));
     if (state == PLC_STATE_FAULTED && k >= 0 && (size_t)k < n)
         k += snprintf(out + k, n - (size_t)k, " (fault %u, line %u)", fault, line);
+    if (app[0] && k >= 0 && (size_t)k < n)
+        k += snprintf(out + k, n - (size_t)k, "%s", app);
     if (k >= 0 && (size_t)k < n)
         snprintf(out + k, n - (size_t)k,
                  " | scans %llu | scan us last %u p99 %u max %u | wake-up us p99 %u max %u | overruns %u"

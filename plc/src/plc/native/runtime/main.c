@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "runtime.h"
+#include "monitor.h"
 
 #define DEFAULT_PORT 5020
 #define DEFAULT_MAX_CLIENTS 32
@@ -63,6 +64,12 @@ static void usage(FILE *f)
 "  --status-interval S      seconds between status log lines when not on a terminal (default 10)\n"
 "  --duration S             stop after S seconds (benchmarks; default: run until SIGINT/SIGTERM)\n"
 "  --watchdog MS            longest run() call before outputs are forced safe (default %d, 0 = off)\n"
+"  --monitor PATH           serve the monitoring channel (watch, write, force) on this\n"
+"                           Unix socket, mode 0600 (default: none)\n"
+"  --monitor-token FILE     the token that unlocks writes and forces (without: read-only)\n"
+"  --audit FILE             append every write, force and refused token here\n"
+"  --events FILE            register-map description: tool changes, faults, aborts,\n"
+"                           E-stop, homing and the host link on the log (written by plc run)\n"
 "  --describe-retain        print the retained entries (path, type, location, bytes) and the\n"
 "                           located variables, one per line, tab-separated, and exit\n"
 "  --version, --help\n"
@@ -155,7 +162,8 @@ static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char
 
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_IO_DEVICE, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
        OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
-       OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP };
+       OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP,
+       OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS };
 
 static int parse_options(int argc, char **argv, rt_options_t *o)
 {
@@ -180,6 +188,10 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "duration", required_argument, NULL, OPT_DURATION },
         { "watchdog", required_argument, NULL, OPT_WATCHDOG },
         { "describe-retain", no_argument, NULL, OPT_DESCRIBE_RETAIN },
+        { "monitor", required_argument, NULL, OPT_MONITOR },
+        { "monitor-token", required_argument, NULL, OPT_MONITOR_TOKEN },
+        { "audit", required_argument, NULL, OPT_AUDIT },
+        { "events", required_argument, NULL, OPT_EVENTS },
         { "version", no_argument, NULL, OPT_VERSION },
         { "help", no_argument, NULL, OPT_HELP },
         { NULL, 0, NULL, 0 },
@@ -305,6 +317,18 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         case OPT_DESCRIBE_RETAIN:
             o->describe_retain = true;
             break;
+        case OPT_MONITOR:
+            o->monitor_path = optarg;
+            break;
+        case OPT_MONITOR_TOKEN:
+            o->monitor_token_file = optarg;
+            break;
+        case OPT_AUDIT:
+            o->audit_path = optarg;
+            break;
+        case OPT_EVENTS:
+            o->events_path = optarg;
+            break;
         case OPT_VERSION:
             printf(RT_NAME " " RT_VERSION " (ABI %u)\n", PLC_ABI_VERSION);
             exit(0);
@@ -412,6 +436,11 @@ int main(int argc, char **argv)
     image_publish_all(&rt);
     pthread_mutex_unlock(&rt.lock);
 
+    if (events_open(&rt, rt.opt.events_path, &rt.events) != 0)
+        goto out_retain;
+    if (monitor_start(&rt, &rt.monitor) != 0)      /* watching is a comfort: the PLC runs without it */
+        log_msg(rt.log, LOG_WARN, "monitor: not available (the reason is above); the PLC runs without "
+                "watch and force");
     if (modbus_server_start(&rt, &rt.server) != 0)
         goto out_retain;
 
@@ -427,12 +456,16 @@ int main(int argc, char **argv)
     /* Outputs are safe now; flush retained data before anything else. */
     retain_close(&rt);
     modbus_server_stop(rt.server);
+    monitor_stop(rt.monitor);
     goto out_io;
 out_retain:
+    monitor_stop(rt.monitor);
     retain_close(&rt);
 out_io:
     rt.opt.io->close(rt.io_state);
 out_log:
+    force_destroy(rt.force);
+    events_close(rt.events);
     notify_close(rt.notify);
     if (status == 0)
         log_msg(rt.log, LOG_INFO, "stopped");

@@ -17,6 +17,8 @@
  *   watchdog.c       forces outputs safe when run() never returns
  *   notify.c         tells a service manager (systemd) ready, alive, stopping
  *   log.c            log lines and the live status line
+ *   monitor.c, force.c, varpath.c, events.c  watch, write and force over a
+ *                    Unix socket; the application's events (monitor.h)
  *   main.c           options, start-up and orderly shutdown
  *
  * Data flow of one scan (scan_core.h):  io inputs -> program image <- host
@@ -242,6 +244,10 @@ typedef struct rt_options {
     bool describe_retain;          /* print the retained entries and exit */
     const char *io_devices[IO_MAX_DEVICES];   /* --io-device SPEC, for --io modbus (io_modbus.c) */
     int n_io_devices;
+    const char *monitor_path;      /* Unix socket of the monitoring channel (NULL: none) */
+    const char *monitor_token_file;    /* file holding the token that unlocks writes (NULL: read-only) */
+    const char *audit_path;        /* every write and force appended here (NULL: log only) */
+    const char *events_path;       /* register-map description for application events (NULL: none) */
 } rt_options_t;
 
 /* ------------------------------------------------------------ statistics */
@@ -281,6 +287,9 @@ typedef struct modbus_server modbus_server_t;
 typedef struct retain_store retain_store_t;
 typedef struct watchdog watchdog_t;
 typedef struct notifier notifier_t;
+typedef struct monitor monitor_t;           /* monitor.h */
+typedef struct force_state force_state_t;   /* monitor.h */
+typedef struct events events_t;             /* monitor.h */
 
 struct runtime {
     rt_options_t opt;
@@ -300,6 +309,9 @@ struct runtime {
     retain_store_t *retain;
     watchdog_t *watchdog;
     notifier_t *notify;            /* NULL when no service manager listens */
+    monitor_t *monitor;            /* NULL without --monitor */
+    force_state_t *force;          /* writes, forces, snapshots (with the monitor) */
+    events_t *events;              /* NULL without --events */
     pthread_t scan_thread;
     uint64_t started_ns;           /* when the scan loop started (monotonic) */
     uint64_t refresh_every;        /* scans between two refreshes of the percentiles */

@@ -25,6 +25,7 @@
 #include <time.h>
 
 #include "runtime.h"
+#include "monitor.h"
 
 uint64_t now_ns(void)
 {
@@ -304,6 +305,18 @@ static void rt_write_outputs(void *ctx, plc_image_t *image, int running)
     pthread_mutex_unlock(&rt->io_lock);
 }
 
+/* The monitor's three points of the scan (each does nothing without a monitor). */
+static void hook_after_inputs(void *ctx)
+{
+    runtime_t *rt = ctx;
+
+    monitor_after_inputs(rt);
+    if (rt->force && force_count(rt->force) > 0)    /* forced inputs in the image too: hosts see them */
+        plc_scan_reflect_inputs(&rt->core);
+}
+static void hook_before_outputs(void *ctx) { monitor_before_outputs(ctx); }
+static void hook_scan_done(void *ctx, uint64_t scan_no) { (void)scan_no; monitor_scan_done(ctx); }
+
 int scan_run(runtime_t *rt)
 {
     const plc_program_t *prog = rt->prog;
@@ -322,8 +335,10 @@ int scan_run(runtime_t *rt)
     rt->core.io = (plc_scan_io_t){ .ctx = rt, .read_inputs = rt_read_inputs, .write_outputs = rt_write_outputs };
     rt->core.run = rt_run_tasks;
     rt->core.run_ctx = rt;
-    /* Forcing and monitoring (the HMI) plug into rt->core.hooks: after_inputs (forced inputs),
-     * before_outputs (forced outputs) and scan_done (snapshot); all NULL until then. */
+    /* Forcing and monitoring (monitor.c): forced inputs after the latch, forced outputs before
+     * publication, the snapshot and the application's events once the scan is published. */
+    rt->core.hooks = (plc_scan_hooks_t){ .ctx = rt, .after_inputs = hook_after_inputs,
+                                         .before_outputs = hook_before_outputs, .scan_done = hook_scan_done };
 
     rt->state = PLC_STATE_RUNNING;
     pthread_mutex_lock(&rt->lock);

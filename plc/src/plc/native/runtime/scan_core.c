@@ -200,6 +200,12 @@ void plc_scan_force_inputs(plc_scan_t *s)
         s->hooks.after_inputs(s->hooks.ctx);
 }
 
+void plc_scan_reflect_inputs(plc_scan_t *s)
+{
+    for (uint32_t i = 0; i < s->n_inputs; i++)
+        copy_value(s->bindings[i].slot, s->bindings[i].var, s->bindings[i].size);
+}
+
 int plc_scan_run_tasks(plc_scan_t *s, int64_t now_ns)
 {
     if (s->fault == 0) {

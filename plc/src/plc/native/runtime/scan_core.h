@@ -140,6 +140,9 @@ int plc_scan_step(plc_scan_t *s, int64_t now_ns);
  * plc_scan_step() is exactly these four calls. */
 void plc_scan_latch_inputs(plc_scan_t *s);
 void plc_scan_force_inputs(plc_scan_t *s);
+/* Copies the located inputs as the program sees them (forced values included) back to their image
+ * slots, so that every reader of the image sees what the program sees. */
+void plc_scan_reflect_inputs(plc_scan_t *s);
 int plc_scan_run_tasks(plc_scan_t *s, int64_t now_ns);
 void plc_scan_publish_outputs(plc_scan_t *s);
 

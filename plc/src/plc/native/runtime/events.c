@@ -1,0 +1,462 @@
+/*
+ * events.c - what the toolchanger does, told on the runtime's log.
+ *
+ * `plc run` writes a description of the register map (--events FILE): the
+ * signals with their table, address and type, the state names of the coded
+ * signals and the text of every reason code.  At the end of each scan the
+ * scan thread reads the signals it knows by name from the program image
+ * (a few dozen bytes, no lock) and compares them with the previous scan;
+ * a change becomes a log line (the log thread writes it, the scan never waits):
+ *
+ *   tool change T3 -> T7 requested / done in 4.212 s / ended without completion
+ *   prepare tool 7 (pocket 7) requested / done in 0.81 s
+ *   fault -103 CHANGE_INTERRUPTED raised: <text> / cleared
+ *   abort from the host: reason 8 TASK_ABORT
+ *   E-stop: chain opened / released
+ *   changer IDLE -> HOMING; carousel homed at pocket 1
+ *   host link lost / restored
+ *   sequence PUT started / ended
+ *
+ * A signal the description lacks is simply not watched (an older map, or
+ * OpenPLC's names): the runtime knows roles, the map says where they live.
+ * The status line gets the tool in the spindle, the changer state by name and
+ * the latched fault (events_status(), from atomics the scan thread sets).
+ *
+ * Description lines (tab-separated, '#' comments):
+ *   signal NAME TABLE ADDRESS TYPE     TABLE: coil|discrete_input|input_register|holding_register
+ *   state  NAME VALUE LABEL            names of a coded signal's values
+ *   reason CODE NAME TEXT              reason_codes.toml
+ */
+#define _GNU_SOURCE
+#include <inttypes.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "monitor.h"
+
+enum role {
+    R_TOOL_IN_SPINDLE, R_CHANGER_STATE, R_FAULT_REASON, R_TOOL_CHANGE, R_TOOL_CHANGED, R_TOOL_PREPARE,
+    R_TOOL_PREPARED, R_PREP_NUMBER, R_PREP_POCKET, R_TOOL_NUMBER, R_EMC_ABORT, R_EMC_REASON, R_ESTOP_OK,
+    R_HOST_LINK_OK, R_CAROUSEL_HOMED, R_CURRENT_POCKET, R_SEQ_KIND, R_IOV_STATE, R_SIMULATED_PLANT,
+    R_SIM_ESTOP, R_ESTOP_CLOSED, R_COUNT
+};
+
+static const char *const role_signal[R_COUNT] = {
+    "ToolInSpindle", "ChangerState", "FaultReason", "ToolChange", "ToolChanged", "ToolPrepare",
+    "ToolPrepared", "ToolPrepNumber", "ToolPrepPocket", "ToolNumber", "EmcAbort", "EmcReason", "EStopOk",
+    "HostLinkOk", "CarouselHomed", "CurrentPocket", "SeqKind", "IovState", "SimulatedPlant", "SimEStop",
+    NULL,   /* derived: the E-stop chain as the application sees it */
+};
+
+/* LinuxCNC's emc-abort reasons (SPEC section 2). */
+static const struct { int code; const char *name; } cnc_reasons[] = {
+    { 1, "TASK_EXEC_ERROR" }, { 2, "AUX_ESTOP" }, { 3, "MOTION_OR_IO_RCS_ERROR" }, { 4, "TASK_STATE_OFF" },
+    { 5, "TASK_STATE_ESTOP_RESET" }, { 6, "TASK_STATE_ESTOP" }, { 7, "TASK_STATE_NOT_ON" }, { 8, "TASK_ABORT" },
+    { 9, "INTERPRETER_ERROR" }, { 10, "INTERPRETER_ERROR_MDI" }, { 100, "USER" },
+    { 101, "ABORT_BY_TOOLCHANGER_FAULT" },
+};
+
+#define EV_LINES_PER_S 20
+#define MAX_STATES 32
+#define MAX_REASONS 256
+
+typedef struct watched {
+    bool present;
+    char table;                 /* 'c' coil, 'd' discrete input, 'i' input register, 'h' holding */
+    unsigned addr;
+    unsigned words;             /* 1 or 2 (registers) */
+    bool is_signed, is_real;
+    char *states[MAX_STATES];   /* labels by value */
+} watched_t;
+
+typedef struct reason { int code; char *name; char *text; } reason_t;
+
+struct events {
+    watched_t sig[R_COUNT];
+    reason_t reasons[MAX_REASONS];
+    unsigned n_reasons;
+
+    /* scan thread */
+    bool primed;
+    int64_t prev[R_COUNT];
+    uint64_t prepare_at, change_at;
+    int64_t change_from, change_to;
+    bool changed_seen;
+
+    /* state and sequence lines: at most EV_LINES_PER_S a second (a state that flips every scan must not
+     * flood the log); faults, E-stop, aborts, the link and tool changes are always told */
+    uint64_t window_start;
+    unsigned window_lines, suppressed;
+
+    /* status line */
+    atomic_int tool, state, fault;
+    atomic_bool have_tool, have_state, have_fault;
+};
+
+/* ---------------------------------------------------------- description */
+
+static int role_of(const char *name)
+{
+    for (int r = 0; r < R_COUNT; r++)
+        if (role_signal[r] && strcmp(role_signal[r], name) == 0)
+            return r;
+    return -1;
+}
+
+/* Split line at tabs into at most max fields (the last keeps any further tabs). */
+static int split_tabs(char *line, char **f, int max)
+{
+    int n = 0;
+    line[strcspn(line, "\r\n")] = 0;
+    while (n < max) {
+        f[n++] = line;
+        if (n == max)
+            break;
+        char *tab = strchr(line, '\t');
+        if (!tab)
+            break;
+        *tab = 0;
+        line = tab + 1;
+    }
+    return n;
+}
+
+static int parse_signal(events_t *ev, char **f, int n, char *err, size_t errlen)
+{
+    char *end;
+    if (n != 5) {
+        snprintf(err, errlen, "signal: expected NAME TABLE ADDRESS TYPE");
+        return -1;
+    }
+    int r = role_of(f[1]);
+    if (r < 0)
+        return 0;
+    watched_t *w = &ev->sig[r];
+    const char *table = f[2], *type = f[4];
+    if (!strcmp(table, "coil")) w->table = 'c';
+    else if (!strcmp(table, "discrete_input")) w->table = 'd';
+    else if (!strcmp(table, "input_register")) w->table = 'i';
+    else if (!strcmp(table, "holding_register")) w->table = 'h';
+    else {
+        snprintf(err, errlen, "signal %s: unknown table '%s'", f[1], table);
+        return -1;
+    }
+    unsigned long addr = strtoul(f[3], &end, 10);
+    unsigned limit = (w->table == 'c' || w->table == 'd') ? MAP_BITS : w->table == 'i' ? MAP_WORDS : MAP_HOLDING;
+    w->words = (!strcmp(type, "DINT") || !strcmp(type, "UDINT") || !strcmp(type, "DWORD") || !strcmp(type, "REAL"))
+               ? 2 : 1;
+    if (end == f[3] || *end || addr + w->words > limit) {
+        snprintf(err, errlen, "signal %s: address '%s' outside the %s table", f[1], f[3], table);
+        return -1;
+    }
+    w->addr = (unsigned)addr;
+    w->is_signed = !strcmp(type, "INT") || !strcmp(type, "DINT");
+    w->is_real = !strcmp(type, "REAL");
+    w->present = true;
+    return 0;
+}
+
+static int parse_line(events_t *ev, char *line, char *err, size_t errlen)
+{
+    char *f[5];
+    int n = split_tabs(line, f, 5);
+
+    if (f[0][0] == 0 || f[0][0] == '#')
+        return 0;
+    if (!strcmp(f[0], "signal"))
+        return parse_signal(ev, f, n, err, errlen);
+    if (!strcmp(f[0], "state") && n == 4) {
+        int r = role_of(f[1]);
+        long v = strtol(f[2], NULL, 10);
+        if (r >= 0 && v >= 0 && v < MAX_STATES && !ev->sig[r].states[v] && !(ev->sig[r].states[v] = strdup(f[3])))
+            goto nomem;
+        return 0;
+    }
+    if (!strcmp(f[0], "reason") && n == 4) {
+        if (ev->n_reasons >= MAX_REASONS)
+            return 0;
+        reason_t *rs = &ev->reasons[ev->n_reasons];
+        rs->code = (int)strtol(f[1], NULL, 10);
+        rs->name = strdup(f[2]);
+        rs->text = strdup(f[3]);
+        ev->n_reasons++;
+        if (!rs->name || !rs->text)
+            goto nomem;
+        return 0;
+    }
+    snprintf(err, errlen, "expected a signal, state or reason line");
+    return -1;
+nomem:
+    snprintf(err, errlen, "out of memory");
+    return -1;
+}
+
+int events_open(runtime_t *rt, const char *path, events_t **out)
+{
+    *out = NULL;
+    if (!path)
+        return 0;
+    FILE *f = fopen(path, "r");
+    if (!f) {
+        log_msg(rt->log, LOG_ERROR, "events: cannot open %s: %m", path);
+        return -1;
+    }
+    events_t *ev = calloc(1, sizeof *ev);
+    if (!ev) {
+        fclose(f);
+        return -1;
+    }
+    char line[512], err[160];
+    unsigned lineno = 0;
+    while (fgets(line, sizeof line, f)) {
+        lineno++;
+        if (parse_line(ev, line, err, sizeof err) != 0) {
+            log_msg(rt->log, LOG_ERROR, "events: %s:%u: %s", path, lineno, err);
+            fclose(f);
+            events_close(ev);
+            return -1;
+        }
+    }
+    fclose(f);
+    unsigned watched = 0;
+    for (int r = 0; r < R_COUNT; r++)
+        watched += ev->sig[r].present;
+    log_msg(rt->log, LOG_INFO, "events: %u of %d application signals watched, %u reason texts (%s)", watched,
+            R_COUNT, ev->n_reasons, path);
+    *out = ev;
+    return 0;
+}
+
+void events_close(events_t *ev)
+{
+    if (!ev)
+        return;
+    for (int r = 0; r < R_COUNT; r++)
+        for (int s = 0; s < MAX_STATES; s++)
+            free(ev->sig[r].states[s]);
+    for (unsigned i = 0; i < ev->n_reasons; i++) {
+        free(ev->reasons[i].name);
+        free(ev->reasons[i].text);
+    }
+    free(ev);
+}
+
+/* --------------------------------------------------------------- values */
+
+static int64_t read_signal(const watched_t *w, const prog_image_t *p)
+{
+    switch (w->table) {
+    case 'c': return p->qx[w->addr];
+    case 'd': return p->ix[w->addr];
+    case 'i': return w->is_signed ? (int16_t)p->iw[w->addr] : p->iw[w->addr];
+    default: break;
+    }
+    uint32_t raw = image_prog_holding(p, w->addr);
+    if (w->words == 2)
+        raw = (raw << 16) | image_prog_holding(p, w->addr + 1);
+    if (w->is_real) {
+        float f;
+        memcpy(&f, &raw, 4);
+        return (int64_t)f;
+    }
+    if (w->words == 1)
+        return w->is_signed ? (int16_t)raw : (int64_t)(uint16_t)raw;
+    return w->is_signed ? (int32_t)raw : (int64_t)raw;
+}
+
+static const reason_t *reason_of(const events_t *ev, int64_t code)
+{
+    for (unsigned i = 0; i < ev->n_reasons; i++)
+        if (ev->reasons[i].code == code)
+            return &ev->reasons[i];
+    return NULL;
+}
+
+static const char *cnc_reason(int64_t code)
+{
+    for (size_t i = 0; i < sizeof cnc_reasons / sizeof cnc_reasons[0]; i++)
+        if (cnc_reasons[i].code == code)
+            return cnc_reasons[i].name;
+    return "?";
+}
+
+static const char *state_label(const events_t *ev, int role, int64_t v, char *buf, size_t n)
+{
+    if (v >= 0 && v < MAX_STATES && ev->sig[role].states[v])
+        return ev->sig[role].states[v];
+    snprintf(buf, n, "%" PRId64, v);
+    return buf;
+}
+
+/* ------------------------------------------------------------ the scan */
+
+static bool ev_budget(events_t *ev, runtime_t *rt, uint64_t now)
+{
+    if (now - ev->window_start >= 1000000000u) {
+        if (ev->suppressed)
+            log_msg(rt->log, LOG_WARN, "events: %u more application events in %.1f s not shown (at most %d lines "
+                    "a second)", ev->suppressed, (double)(now - ev->window_start) / 1e9, EV_LINES_PER_S);
+        ev->window_start = now;
+        ev->window_lines = 0;
+        ev->suppressed = 0;
+    }
+    if (ev->window_lines >= EV_LINES_PER_S) {
+        ev->suppressed++;
+        return false;
+    }
+    ev->window_lines++;
+    return true;
+}
+
+#define EV_LOG(level, ...) do { if (ev_budget(ev, rt, now)) log_msg(log, level, __VA_ARGS__); } while (0)
+
+#define HAS(r) (ev->sig[r].present)
+#define ROSE(r) (HAS(r) && cur[r] && !ev->prev[r])
+#define FELL(r) (HAS(r) && !cur[r] && ev->prev[r])
+#define CHANGED(r) (HAS(r) && cur[r] != ev->prev[r])
+
+void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
+{
+    int64_t cur[R_COUNT];
+    char a[24], b[24];
+    log_sink_t *log = rt->log;
+
+    if (!ev)
+        return;
+    if (ev->suppressed && now - ev->window_start >= 1000000000u)
+        ev_budget(ev, rt, now);                  /* tell what was left out once the flood is over */
+    for (int r = 0; r < R_COUNT; r++)
+        cur[r] = HAS(r) ? read_signal(&ev->sig[r], &rt->pimg) : 0;
+    /* The simulated plant has no E-stop chain of its own: the SimEStop command opens it. */
+    ev->sig[R_ESTOP_CLOSED].present = HAS(R_ESTOP_OK);
+    cur[R_ESTOP_CLOSED] = (HAS(R_SIMULATED_PLANT) && cur[R_SIMULATED_PLANT]) ? !cur[R_SIM_ESTOP] : cur[R_ESTOP_OK];
+
+    if (!ev->primed) {
+        ev->primed = true;
+        memcpy(ev->prev, cur, sizeof cur);
+        if (HAS(R_TOOL_IN_SPINDLE) || HAS(R_CHANGER_STATE))
+            log_msg(log, LOG_INFO, "changer: tool %" PRId64 " in the spindle, state %s", cur[R_TOOL_IN_SPINDLE],
+                    state_label(ev, R_CHANGER_STATE, cur[R_CHANGER_STATE], a, sizeof a));
+        if (HAS(R_FAULT_REASON) && cur[R_FAULT_REASON]) {
+            const reason_t *rs = reason_of(ev, cur[R_FAULT_REASON]);
+            log_msg(log, LOG_ERROR, "fault %" PRId64 " %s latched: %s", cur[R_FAULT_REASON], rs ? rs->name : "?",
+                    rs ? rs->text : "(not in reason_codes.toml)");
+        }
+        if (HAS(R_ESTOP_CLOSED) && !cur[R_ESTOP_CLOSED])
+            log_msg(log, LOG_WARN, "E-stop: the E-stop chain is open");
+        goto publish;
+    }
+
+    if (FELL(R_ESTOP_CLOSED))
+        log_msg(log, LOG_WARN, "E-stop: the E-stop chain opened (carousel outputs off)");
+    if (ROSE(R_ESTOP_CLOSED))
+        log_msg(log, LOG_INFO, "E-stop released: the E-stop chain is closed");
+    if (FELL(R_HOST_LINK_OK))
+        log_msg(log, LOG_WARN, "host link lost: no heartbeat change from the host");
+    if (ROSE(R_HOST_LINK_OK))
+        log_msg(log, LOG_INFO, "host link restored");
+    if (ROSE(R_EMC_ABORT))
+        log_msg(log, LOG_WARN, "abort from the host: reason %" PRId64 " %s", cur[R_EMC_REASON],
+                cnc_reason(cur[R_EMC_REASON]));
+
+    if (ROSE(R_TOOL_PREPARE)) {
+        ev->prepare_at = now;
+        log_msg(log, LOG_INFO, "prepare tool %" PRId64 " (pocket %" PRId64 ") requested", cur[R_PREP_NUMBER],
+                cur[R_PREP_POCKET]);
+    }
+    if (ROSE(R_TOOL_PREPARED) && ev->prepare_at)
+        log_msg(log, LOG_INFO, "prepare tool %" PRId64 " done in %.3f s", cur[R_PREP_NUMBER],
+                (double)(now - ev->prepare_at) / 1e9);
+
+    if (ROSE(R_TOOL_CHANGE)) {
+        ev->change_at = now;
+        ev->changed_seen = false;
+        ev->change_from = cur[R_TOOL_IN_SPINDLE];
+        ev->change_to = HAS(R_PREP_NUMBER) ? cur[R_PREP_NUMBER] : cur[R_TOOL_NUMBER];   /* M6 loads the prepared tool */
+        log_msg(log, LOG_INFO, "tool change T%" PRId64 " -> T%" PRId64 " requested", ev->change_from, ev->change_to);
+    }
+    if (ROSE(R_TOOL_CHANGED) && ev->change_at) {
+        ev->changed_seen = true;
+        log_msg(log, LOG_INFO, "tool change T%" PRId64 " -> T%" PRId64 " done in %.3f s", ev->change_from,
+                cur[R_TOOL_IN_SPINDLE], (double)(now - ev->change_at) / 1e9);
+    }
+    if (FELL(R_TOOL_CHANGE) && ev->change_at) {
+        if (!ev->changed_seen)
+            log_msg(log, LOG_WARN, "tool change T%" PRId64 " -> T%" PRId64 " ended without completion after %.3f s"
+                    " (tool %" PRId64 " in the spindle)", ev->change_from, ev->change_to,
+                    (double)(now - ev->change_at) / 1e9, cur[R_TOOL_IN_SPINDLE]);
+        ev->change_at = 0;
+    }
+
+    if (CHANGED(R_FAULT_REASON)) {
+        if (ev->prev[R_FAULT_REASON]) {
+            const reason_t *was = reason_of(ev, ev->prev[R_FAULT_REASON]);
+            log_msg(log, LOG_INFO, "fault %" PRId64 " %s cleared", ev->prev[R_FAULT_REASON], was ? was->name : "?");
+        }
+        if (cur[R_FAULT_REASON]) {
+            const reason_t *rs = reason_of(ev, cur[R_FAULT_REASON]);
+            log_msg(log, LOG_ERROR, "fault %" PRId64 " %s raised: %s", cur[R_FAULT_REASON], rs ? rs->name : "?",
+                    rs ? rs->text : "(not in reason_codes.toml)");
+        }
+    }
+    if (CHANGED(R_CHANGER_STATE)) {
+        const char *from = state_label(ev, R_CHANGER_STATE, ev->prev[R_CHANGER_STATE], a, sizeof a);
+        const char *to = state_label(ev, R_CHANGER_STATE, cur[R_CHANGER_STATE], b, sizeof b);
+        EV_LOG(LOG_INFO, "changer %s -> %s", from, to);
+        /* homing by the state's name (the map gives E_AtcState's names): always told */
+        bool was = strcasestr(from, "homing") != NULL, is = strcasestr(to, "homing") != NULL;
+        if (is && !was)
+            log_msg(log, LOG_INFO, "homing started");
+        if (was && !is)
+            log_msg(log, HAS(R_CAROUSEL_HOMED) && !cur[R_CAROUSEL_HOMED] ? LOG_WARN : LOG_INFO,
+                    "homing ended: carousel %s, pocket %" PRId64 " at the change position",
+                    HAS(R_CAROUSEL_HOMED) && !cur[R_CAROUSEL_HOMED] ? "NOT homed" : "homed", cur[R_CURRENT_POCKET]);
+    }
+    if (ROSE(R_CAROUSEL_HOMED))
+        EV_LOG(LOG_INFO, "homing done: carousel homed, pocket %" PRId64 " at the change position",
+                cur[R_CURRENT_POCKET]);
+    if (FELL(R_CAROUSEL_HOMED))
+        EV_LOG(LOG_WARN, "carousel no longer homed (position unknown)");
+    if (CHANGED(R_SEQ_KIND)) {
+        if (ev->prev[R_SEQ_KIND])
+            EV_LOG(LOG_INFO, "sequence %s ended",
+                    state_label(ev, R_SEQ_KIND, ev->prev[R_SEQ_KIND], a, sizeof a));
+        if (cur[R_SEQ_KIND])
+            EV_LOG(LOG_INFO, "sequence %s started", state_label(ev, R_SEQ_KIND, cur[R_SEQ_KIND], b, sizeof b));
+    }
+    memcpy(ev->prev, cur, sizeof cur);
+
+publish:
+    atomic_store(&ev->tool, (int)cur[R_TOOL_IN_SPINDLE]);
+    atomic_store(&ev->state, (int)cur[R_CHANGER_STATE]);
+    atomic_store(&ev->fault, (int)cur[R_FAULT_REASON]);
+    atomic_store(&ev->have_tool, HAS(R_TOOL_IN_SPINDLE));
+    atomic_store(&ev->have_state, HAS(R_CHANGER_STATE));
+    atomic_store(&ev->have_fault, HAS(R_FAULT_REASON));
+}
+
+void events_status(events_t *ev, char *out, size_t n)
+{
+    char a[24];
+    int k = 0;
+
+    if (n)
+        out[0] = 0;
+    if (!ev || !ev->primed)
+        return;
+    if (atomic_load(&ev->have_tool))
+        k += snprintf(out + k, n - (size_t)k, " | tool %d", atomic_load(&ev->tool));
+    if (atomic_load(&ev->have_state) && k >= 0 && (size_t)k < n)
+        k += snprintf(out + k, n - (size_t)k, " | changer %s",
+                      state_label(ev, R_CHANGER_STATE, atomic_load(&ev->state), a, sizeof a));
+    if (atomic_load(&ev->have_fault) && k >= 0 && (size_t)k < n) {
+        int f = atomic_load(&ev->fault);
+        const reason_t *rs = f ? reason_of(ev, f) : NULL;
+        if (f)
+            snprintf(out + k, n - (size_t)k, " | fault %d %s", f, rs ? rs->name : "?");
+        else
+            snprintf(out + k, n - (size_t)k, " | no fault");
+    }
+}

@@ -1,0 +1,193 @@
+"""The toolchanger page in a real browser (Debian's chromium + chromium-driver, driven by selenium).
+
+The real application runs on our runtime with the simulated carousel and its monitor; `plc hmi` serves the page
+on a free loopback port.  Checked as an operator would see it: the page loads with the carousel drawn from the
+map and configs/machine.toml; during T3 M6 the carousel turns (motion shown) to pocket 3 and tool 3 arrives in
+the spindle; a forced input (the simulated plant switched off: the application then sees the open E-stop
+chain) changes the program's behaviour, shows as forced, and the fault appears with its text, cause and
+remedy; without the token every command and force is refused and nothing reaches the PLC.  A screenshot is
+kept in build/artifacts/hmi-toolchanger.png.
+
+Without chromium, chromium-driver or selenium the test is skipped with the reason printed (scripts/setup
+installs them); a browser that is present but fails is a failure.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+import rt_harness as h
+from plc import driver, runtime
+from plc.hmi.monitor import Monitor
+from plc.host.modbus import ModbusClient
+from plc.host.session import Session, Timeouts
+from plc.host.tags import load_map
+
+REPO = Path(__file__).resolve().parents[2]
+ARTIFACTS = REPO / "build" / "artifacts"
+TOKEN = "browser-test-token-0123456789"
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+DRIVER = shutil.which("chromedriver")
+
+try:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.by import By
+    HAVE_SELENIUM = True
+except ImportError:
+    HAVE_SELENIUM = False
+
+MISSING = [what for what, ok in (("chromium", CHROMIUM), ("chromium-driver", DRIVER), ("selenium", HAVE_SELENIUM))
+           if not ok]
+if MISSING:
+    print(f"\ntest_hmi_browser: SKIPPED: {', '.join(MISSING)} not installed (scripts/setup installs them)",
+          file=sys.stderr)
+pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"{', '.join(MISSING)} not installed (run scripts/setup)")
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory):
+    """The application on our runtime, its monitor, and `plc hmi` in front of it."""
+    tmp = tmp_path_factory.mktemp("hmi")
+    result = driver.compile_sources([REPO / "st_src"], portability=False)
+    assert result.ok
+    (tmp / "program.c").write_text(result.c_text)
+    binary = runtime.build_runtime(tmp / "program.c", h.CACHE, sanitize=h.SANITIZE)
+    (tmp / "token").write_text(TOKEN + "\n")
+    sock = tmp / "m.sock"
+    rt = h.Runtime(binary, "--no-rt", "--monitor", str(sock), "--monitor-token", str(tmp / "token"),
+                   "--writable-registers", "512-8191").start()
+    hmi = subprocess.Popen([sys.executable, "-m", "plc.cli", "hmi", "--port", "0", "--plc-port", str(rt.port),
+                            "--monitor", str(sock), "--token-file", str(tmp / "token"), "--alarms",
+                            str(tmp / "alarms.jsonl"), "--map", str(REPO / "modbus_map" / "map.toml")],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    line = hmi.stdout.readline()
+    m = re.search(r"(http://127\.0\.0\.1:\d+)/", line)
+    assert m, f"plc hmi did not start: {line}{hmi.stdout.read() if hmi.poll() is not None else ''}"
+    yield {"url": m.group(1), "rt": rt, "sock": sock, "tmp": tmp}
+    hmi.send_signal(signal.SIGINT)
+    try:
+        hmi.wait(10 * h.SLOW)
+    except subprocess.TimeoutExpired:
+        hmi.kill()
+    rc = rt.stop()
+    rt.assert_clean_exit(rc)
+
+
+def browser():
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,900"):
+        opts.add_argument(arg)
+    return webdriver.Chrome(service=Service(DRIVER), options=opts)
+
+
+def text(b, element_id: str) -> str:
+    return b.find_element(By.ID, element_id).text
+
+
+def wait_page(b, predicate, timeout: float, what: str):
+    return h.wait_until(lambda: predicate(b), timeout, what, step=0.05)
+
+
+def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_without_token(plant):
+    url = plant["url"]
+    b = browser()
+    try:
+        b.get(url + "/")
+        assert "toolchanger" in b.title
+        wait_page(b, lambda b: text(b, "plc-link") == "connected", 10, "the page to reach the PLC")
+        pockets = b.find_elements(By.CSS_SELECTOR, ".pocket")
+        assert len(pockets) == 6, "configs/machine.toml: 6 pockets"
+        wait_page(b, lambda b: text(b, "spindle-tool") == "T0", 10, "the empty spindle")
+        assert b.find_elements(By.CSS_SELECTOR, "#iolines tr[data-signal=ToolPrepare]"), "iov2 lines from the map"
+
+        # --- T3 M6 from a host, the page watched every 50 ms
+        rmap = load_map(REPO / "modbus_map" / "map.toml")
+        client = ModbusClient("127.0.0.1", plant["rt"].port, timeout=5 * h.SLOW)
+        client.connect()
+        session = Session(rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60 * h.SLOW))
+        outcome = {}
+
+        def host():
+            session.start()
+            outcome["prepare"] = session.prepare(3, 3)
+            outcome["change"] = session.change()
+
+        t = threading.Thread(target=host)
+        t.start()
+        seen = []
+        deadline = time.monotonic() + 120 * h.SLOW
+        while (t.is_alive() or len(seen) < 2) and time.monotonic() < deadline:
+            seen.append((text(b, "current-pocket"), text(b, "motion"), text(b, "target-pocket"),
+                         text(b, "spindle-tool"), text(b, "changer-state")))
+            time.sleep(0.05)
+        t.join(10)
+        assert outcome["prepare"].ok and outcome["change"].ok, outcome
+        wait_page(b, lambda b: text(b, "spindle-tool") == "T3", 10, "tool 3 in the spindle on the page")
+        pockets_seen = [s[0] for s in seen]
+        assert any(s[1].startswith("turning") for s in seen), f"the carousel never showed motion: {seen[:5]}"
+        assert "3" in pockets_seen and pockets_seen.index("3") > 0, f"pocket 3 never reached: {pockets_seen}"
+        assert any(s[2] == "3" for s in seen), "the target pocket 3 was shown"
+        assert pockets_seen[0] != "3", "the carousel started elsewhere"
+        assert any("AtcGetting" in s[4] for s in seen), "the changer state by name"
+        current = b.find_element(By.CSS_SELECTOR, ".pocket.current")
+        assert current.get_attribute("data-pocket") == "3"
+        session.stop()
+        client.close()
+
+        # --- unlock, force an input from the watch panel: the program faults, the page shows it
+        b.find_element(By.ID, "token").send_keys(TOKEN)
+        b.find_element(By.ID, "token-set").click()
+        wait_page(b, lambda b: "unlocked" in text(b, "token-state"), 10, "the token accepted")
+        b.find_element(By.ID, "watch-path").send_keys("%IX49.7")
+        b.find_element(By.ID, "watch-add").click()
+        row = "#watch tr[data-path='CONFIG0.RES0.ATC.SIMULATEDPLANT']"
+        wait_page(b, lambda b: b.find_elements(By.CSS_SELECTOR, row), 10, "the watched input's row")
+        b.find_element(By.CSS_SELECTOR, row + " input.val").send_keys("FALSE")
+        b.find_element(By.CSS_SELECTOR, row + " button[data-action=force]").click()
+        wait_page(b, lambda b: "forced" in b.find_element(By.CSS_SELECTOR, row).get_attribute("class"), 10,
+                  "the row marked forced")
+        wait_page(b, lambda b: text(b, "fault").startswith("-101 ESTOP"), 10, "the fault on the page")
+        assert "E-stop chain opened" in text(b, "fault-text")
+        assert text(b, "fault-cause").startswith("cause:") and text(b, "fault-remedy").startswith("remedy:")
+        assert b.find_elements(By.CSS_SELECTOR, "#alarms tr.alarm[data-code='-101']"), "in the alarm history"
+        assert text(b, "force-count") == "1"
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        shot = ARTIFACTS / "hmi-toolchanger.png"
+        b.save_screenshot(str(shot))
+        print(f"\nscreenshot: {shot}")
+        b.find_element(By.CSS_SELECTOR, row + " button[data-action=unforce-restore]").click()
+        wait_page(b, lambda b: "forced" not in b.find_element(By.CSS_SELECTOR, row).get_attribute("class"), 10,
+                  "the force ended")
+        b.find_element(By.ID, "cmd-clear").click()
+        wait_page(b, lambda b: text(b, "fault") == "none", 30, "the fault cleared by the page's command")
+
+        # --- a page without the token: refused, and nothing reaches the PLC
+        b.execute_script("sessionStorage.clear()")
+        b.get(url + "/")
+        wait_page(b, lambda b: text(b, "plc-link") == "connected", 10, "the page again")
+        b.find_element(By.ID, "cmd-home").click()
+        wait_page(b, lambda b: "refused" in text(b, "message"), 10, "home refused")
+        assert "token" in text(b, "message")
+        b.find_element(By.ID, "watch-path").send_keys("%IX49.7")
+        b.find_element(By.ID, "watch-add").click()
+        wait_page(b, lambda b: b.find_elements(By.CSS_SELECTOR, row), 10, "the row")
+        b.find_element(By.CSS_SELECTOR, row + " input.val").send_keys("FALSE")
+        b.find_element(By.CSS_SELECTOR, row + " button[data-action=force]").click()
+        wait_page(b, lambda b: "refused" in text(b, "message"), 10, "force refused")
+        with Monitor(plant["sock"], timeout=5 * h.SLOW) as m:
+            assert m.forces() == []
+            assert m.read("%IX49.7")["CONFIG0.RES0.ATC.SIMULATEDPLANT"] is True
+        assert text(b, "fault") == "none"
+    finally:
+        b.quit()

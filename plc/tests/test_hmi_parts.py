@@ -1,0 +1,141 @@
+"""The pieces behind the page and the events: the diagnostic block's layout agrees with runtime.h, the event
+description carries every map signal, state name and reason text, `plc status` and `plc monitor` fail
+politely, and the page's HTTP guards refuse what they must (no PLC needed for these)."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from plc.hmi import mapinfo, status
+from plc.hmi import cli as monitor_cli
+from plc.resources import RUNTIME_SRC
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_the_diagnostic_layout_agrees_with_runtime_h():
+    text = (RUNTIME_SRC / "runtime.h").read_text()
+    block = text[text.index("enum diag_offset"):text.index("};", text.index("enum diag_offset"))]
+    offsets = {m.group(1).lower(): int(m.group(2)) for m in re.finditer(r"DIAG_(\w+)\s*=\s*(\d+)", block)}
+    assert offsets, "runtime.h's enum diag_offset not found"
+    assert {k: v[0] for k, v in status.DIAG.items()} == offsets
+
+
+def test_the_diagnostic_block_decodes_high_word_first():
+    words = [0] * status.DIAG_COUNT
+    words[1] = 1                                  # RUNNING
+    words[8:12] = [0, 0, 1, 2]                    # 65538 scans
+    words[20:22] = [0, 1234]                      # scan p99
+    d = status.decode(words)
+    assert d["state"] == 1 and d["scan_count"] == 65538 and d["scan_p99_us"] == 1234
+    assert any("RUNNING" in line for line in status.render(d))
+
+
+def test_the_event_description_names_signals_states_and_reasons():
+    info = mapinfo.load(REPO / "modbus_map" / "map.toml")
+    text = mapinfo.events_description(info)
+    lines = [l.split("\t") for l in text.splitlines() if not l.startswith("#")]
+    signals = {l[1] for l in lines if l[0] == "signal"}
+    assert signals == {s.name for s in info.rmap.signals}
+    assert ["state", "ChangerState", "1", "AtcIdle"] in lines
+    reasons = {int(l[1]): l[3] for l in lines if l[0] == "reason"}
+    assert reasons == {r.code: r.text for r in info.rmap.reasons}
+    assert all(len(l) in (4, 5) for l in lines), "tab-separated, no tab inside a field"
+
+
+def test_every_hard_or_soft_reason_has_a_cause_and_a_remedy():
+    info = mapinfo.load(REPO / "modbus_map" / "map.toml")
+    missing = [r.name for r in info.rmap.reasons if r.severity != "none" and not (r.cause and r.remedy)]
+    assert not missing, f"reason codes without cause or remedy: {missing}"
+
+
+def test_plc_status_without_a_plc_exits_2(capsys):
+    import socket
+    with socket.socket() as s:                    # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert status.main(["--port", str(port)]) == 2
+    assert "plc status: error" in capsys.readouterr().err
+
+
+def test_plc_monitor_without_a_runtime_exits_2(tmp_path, capsys):
+    assert monitor_cli.main(["--socket", str(tmp_path / "none.sock"), "read", "X"]) == 2
+    assert "is `plc run` running" in capsys.readouterr().err
+
+
+def _page_client(tmp_path):
+    """The page's web app against a PLC that is not there (the guards answer before any PLC is asked)."""
+    import socket
+    from aiohttp.test_utils import TestClient, TestServer
+    from plc.hmi import server
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    info = mapinfo.load(REPO / "modbus_map" / "map.toml")
+    opts = server.Options(plc_port=port, monitor_socket=None, alarms=tmp_path / "alarms.jsonl")
+    hub = server.Hub(opts, info, "the-right-token-0123", 6)
+    return TestClient(TestServer(server.make_app(hub)))
+
+
+def test_the_page_refuses_commands_without_the_right_token_bad_json_and_floods(tmp_path):
+    import asyncio
+    import time
+
+    async def run():
+        client = _page_client(tmp_path)
+        await client.start_server()
+        try:
+            r = await client.post("/api/command", json={"cmd": "home"})
+            assert r.status == 403 and "token" in (await r.json())["error"]
+            r = await client.post("/api/command", json={"cmd": "home"}, headers={"X-Token": "wrong"})
+            assert r.status == 403
+            r = await client.post("/api/command", data=b"{not json", headers={"X-Token": "the-right-token-0123"})
+            assert r.status == 400 and "expected JSON" in (await r.json())["error"]
+            r = await client.post("/api/force", json={"action": "force", "path": "%IX0.0", "value": 1},
+                                  headers={"X-Token": "the-right-token-0123"})
+            assert r.status == 409 and "monitoring channel" in (await r.json())["error"]
+            r = await client.post("/api/watch", json={"paths": ["A"] * 100})
+            assert r.status == 400
+            t0 = time.monotonic()
+            codes = [(await client.post("/api/auth", json={})).status for _ in range(120)]
+            elapsed = time.monotonic() - t0
+            assert set(codes) <= {403, 429}
+            # a burst of 40, then 20 a second, whatever the machine's speed
+            assert codes.count(403) <= 40 + 20 * elapsed + 1, (codes.count(403), elapsed)
+            info = await (await client.get("/api/info")).json()
+            assert info["pockets"] == 6 and any(s["name"] == "ToolPrepare" for s in info["signals"])
+        finally:
+            await client.close()
+    asyncio.run(run())
+
+
+def test_plc_run_puts_the_monitor_files_beside_the_retain_file_and_makes_a_private_token(tmp_path):
+    import os
+    from plc import runtime
+    cfg = runtime.RunConfig(retain_file=tmp_path / "var" / "plc.retain")
+    cfg.events_file = tmp_path / "events.txt"
+    argv = runtime.runtime_argv(Path("/bin/true"), cfg)
+    at = {argv[i]: argv[i + 1] for i in range(len(argv) - 1) if argv[i].startswith("--")}
+    assert at["--monitor"] == str(tmp_path / "var" / "plc.monitor")
+    assert at["--monitor-token"] == str(tmp_path / "var" / "monitor.token")
+    assert at["--audit"] == str(tmp_path / "var" / "audit.log")
+    assert at["--events"] == str(tmp_path / "events.txt")
+    runtime.ensure_token(tmp_path / "var" / "monitor.token")
+    token = (tmp_path / "var" / "monitor.token").read_text().strip()
+    assert len(token) >= 32 and oct(os.stat(tmp_path / "var" / "monitor.token").st_mode & 0o777) == "0o600"
+    runtime.ensure_token(tmp_path / "var" / "monitor.token")      # kept, not replaced
+    assert (tmp_path / "var" / "monitor.token").read_text().strip() == token
+    cfg.monitor = False
+    assert "--monitor" not in runtime.runtime_argv(Path("/bin/true"), cfg)
+
+
+def test_the_run_configuration_reads_the_monitor_section(tmp_path):
+    import pytest
+    from plc import runtime
+    f = tmp_path / "run.toml"
+    f.write_text('[monitor]\nenabled = true\nsocket = "run/m.sock"\n')
+    cfg = runtime.load_config(f)
+    assert cfg.monitor and cfg.monitor_socket == tmp_path / "run" / "m.sock"
+    f.write_text('[monitor]\nsocket = 3\n')
+    with pytest.raises(runtime.ConfigError, match=r"\[monitor\] socket: expected a file name"):
+        runtime.load_config(f)

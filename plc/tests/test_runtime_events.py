@@ -1,0 +1,91 @@
+"""The application's events on the runtime's log and status line, with the real application and the simulated
+carousel: tool change (from, to, duration), prepare, fault raised and cleared with its text from
+reason_codes.toml, abort with its reason, E-stop, homing, host link lost and restored.
+
+The events file is the one `plc run` writes from the register map (plc.hmi.mapinfo); the host is plc.host's
+Session, the E-stop a forced input (the simulated plant's SimulatedPlant input off: the application then reads
+the real E-stop chain, which is open).  Every wait is bounded (SLOW); no verdict depends on speed.
+"""
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import pytest
+
+import rt_harness as h
+from plc import driver, runtime
+from plc.hmi import mapinfo
+from plc.hmi.monitor import Monitor
+from plc.host.modbus import ModbusClient
+from plc.host.session import Session, Timeouts
+
+REPO = Path(__file__).resolve().parents[2]
+TOKEN = "events-test-token-0123456789"
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo]:
+    tmp = tmp_path_factory.mktemp("app")
+    result = driver.compile_sources([REPO / "st_src"], portability=False)
+    assert result.ok, "the application must compile"
+    c_file = tmp / "program.c"
+    c_file.write_text(result.c_text)
+    info = mapinfo.load(REPO / "modbus_map" / "map.toml")
+    events = tmp / "events.txt"
+    events.write_text(mapinfo.events_description(info))
+    return runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE), events, info
+
+
+def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app, tmp_path):
+    binary, events, info = app
+    (tmp_path / "token").write_text(TOKEN)
+    sock = tmp_path / "m.sock"
+    with h.Runtime(binary, "--no-rt", "--events", str(events), "--monitor", str(sock), "--monitor-token",
+                   str(tmp_path / "token"), "--status-interval", "0.2",
+                   "--writable-registers", "512-8191") as rt:
+        rt.wait_for(r"events: \d+ of \d+ application signals watched, \d+ reason texts")
+        rt.wait_for(r"changer: tool 0 in the spindle, state AtcIdle")
+        rt.wait_for(r"homing done: carousel homed, pocket 1 at the change position")
+        client = ModbusClient("127.0.0.1", rt.port, timeout=5 * h.SLOW)
+        client.connect()
+        session = Session(info.rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60 * h.SLOW))
+        try:
+            session.start()
+            rt.wait_for(r"host link restored")
+            assert session.prepare(3, 3).ok
+            rt.wait_for(r"prepare tool 3 \(pocket 3\) requested")
+            rt.wait_for(r"prepare tool 3 done in \d+\.\d{3} s")
+            assert session.change().ok
+            m = rt.wait_for(r"tool change T0 -> T3 done in (\d+\.\d{3}) s")
+            assert float(m.group(1)) > 0
+            rt.wait_for(r"changer AtcIdle -> AtcGetting")
+            rt.wait_for(r"sequence GET started")
+            rt.wait_for(r"status RUN \| tool 3 \| changer AtcIdle \| no fault")
+
+            with Monitor(sock, timeout=5 * h.SLOW) as mon:            # E-stop: the sim's plant switched off
+                mon.auth(TOKEN)
+                mon.force("%IX49.7", False)
+                rt.wait_for(r"warning: E-stop: the E-stop chain opened")
+                rt.wait_for(r"error: fault -101 ESTOP raised: E-stop chain opened: toolchanger stopped, outputs safe")
+                rt.wait_for(r"status RUN \| tool 3 \| changer \w+ \| fault -101 ESTOP")
+                mon.unforce("%IX49.7", restore=True)
+                rt.wait_for(r"E-stop released: the E-stop chain is closed")
+            assert session.clear().ok
+            rt.wait_for(r"fault -101 ESTOP cleared")
+            assert session.home().ok
+            rt.wait_for(r"homing started")
+            rt.wait_for(r"homing ended: carousel homed, pocket \d+ at the change position")
+
+            session.abort(8)
+            rt.wait_for(r"warning: abort from the host: reason 8 TASK_ABORT")
+        finally:
+            session.stop()
+            client.close()
+        rt.wait_for(r"warning: host link lost: no heartbeat change from the host", timeout=30)
+    texts = {r.code: r.text for r in info.rmap.reasons}
+    assert texts[-101] in rt.log, "the fault text comes from reason_codes.toml"
+    for line in rt.log.splitlines():          # every tool change line names both tools
+        if "tool change" in line:
+            assert re.search(r"tool change T\d+ -> T\d+ ", line), line
