@@ -17,6 +17,9 @@
  *   write_outputs (scan end):  hand %QX/%QW of each device's output ranges to
  *     its poll thread; a lost device, or a stopped program, gets the device's
  *     safe values instead.
+ *   loss watch (one thread):  wakes when a device's snapshot passes its max
+ *     age and declares it lost then -- safe values handed over, state and log
+ *     line -- instead of at the next scan start, up to one task period later.
  *
  * Both sides hold the device mutex only to copy a few words.  A connection
  * that fails is reopened with a back-off (first period doubling up to the
@@ -131,6 +134,14 @@ typedef struct io_modbus {
     runtime_t *rt;
     unsigned n;
     io_device_t dev[IO_MAX_DEVICES];
+
+    /* the loss watch: declares a device lost the moment its inputs pass the age limit, on its own clock
+     * (the scan would notice only at its next start, up to one task period later) */
+    pthread_t watch;
+    bool watch_started;
+    pthread_mutex_t wm;      /* guards wstop */
+    pthread_cond_t wcv;
+    bool wstop;
 } io_modbus_t;
 
 /* ------------------------------------------------------------- parsing */
@@ -637,6 +648,65 @@ static void set_state(io_device_t *d, io_device_state_t s, uint64_t now, uint64_
                 now / 1e9);
 }
 
+/* A device whose inputs are older than its age limit is lost now: its outputs get their safe values at once
+ * (handed to its poll thread), its state and log line change; the scan's input latch agrees at its next start
+ * (it judges the same snapshot by the same limit).  Only the OK -> LOST transition is made here. */
+static void declare_lost_if_stale(io_device_t *d, uint64_t now)
+{
+    pthread_mutex_lock(&d->m);
+    const uint64_t snap = d->snap_ns;
+    const bool stale = snap != 0 && now - snap > (uint64_t)d->age_ms * 1000000u;
+    pthread_mutex_unlock(&d->m);
+    if (!stale || atomic_load(&d->state) != IO_DEVICE_OK)
+        return;
+    pthread_mutex_lock(&d->m);
+    const bool changed = memcmp(d->out_next, d->safe, d->n_out * sizeof *d->safe) != 0;
+    if (changed) {
+        memcpy(d->out_next, d->safe, d->n_out * sizeof *d->safe);
+        d->out_seq++;
+    }
+    pthread_mutex_unlock(&d->m);
+    set_state(d, IO_DEVICE_LOST, now, now - snap);
+    if (changed) {
+        io_device_t *L = d->leader;
+        atomic_fetch_add(&L->line_seq, 1);
+        pthread_mutex_lock(&L->m);
+        pthread_cond_signal(&L->cv);
+        pthread_mutex_unlock(&L->m);
+    }
+}
+
+static void *loss_watch(void *arg)
+{
+    io_modbus_t *io = arg;
+
+    for (;;) {
+        const uint64_t now = now_ns();
+        uint64_t next = now + 1000000000u;
+        for (unsigned i = 0; i < io->n; i++) {
+            io_device_t *d = &io->dev[i];
+            const uint64_t age = (uint64_t)d->age_ms * 1000000u;
+            declare_lost_if_stale(d, now);
+            pthread_mutex_lock(&d->m);
+            const uint64_t snap = d->snap_ns;
+            pthread_mutex_unlock(&d->m);
+            /* next look: when this device's inputs pass the limit, or one limit from now if they already did */
+            const uint64_t due = (snap != 0 && snap + age > now) ? snap + age + 1 : now + age;
+            if (due < next)
+                next = due;
+        }
+        struct timespec ts = { .tv_sec = (time_t)(next / 1000000000u), .tv_nsec = (long)(next % 1000000000u) };
+        pthread_mutex_lock(&io->wm);
+        while (!io->wstop && now_ns() < next)
+            if (pthread_cond_timedwait(&io->wcv, &io->wm, &ts) == ETIMEDOUT)
+                break;
+        const bool stop = io->wstop;
+        pthread_mutex_unlock(&io->wm);
+        if (stop)
+            return NULL;
+    }
+}
+
 static void modbus_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw[MAP_WORDS])
 {
     io_modbus_t *io = state;
@@ -732,6 +802,13 @@ static void modbus_close_layer(void *state)
 
     if (!io)
         return;
+    if (io->watch_started) {
+        pthread_mutex_lock(&io->wm);
+        io->wstop = true;
+        pthread_cond_broadcast(&io->wcv);
+        pthread_mutex_unlock(&io->wm);
+        pthread_join(io->watch, NULL);
+    }
     for (unsigned i = 0; i < io->n; i++) {
         io_device_t *d = &io->dev[i];
         pthread_mutex_lock(&d->m);
@@ -762,6 +839,8 @@ static void modbus_close_layer(void *state)
         pthread_mutex_destroy(&d->m);
         free_device(d);
     }
+    pthread_cond_destroy(&io->wcv);
+    pthread_mutex_destroy(&io->wm);
     free(io);
 }
 
@@ -846,6 +925,12 @@ static int modbus_open_layer(runtime_t *rt, void **state, char *err, size_t errl
         return -1;
     }
     io->rt = rt;
+    pthread_condattr_t ca;
+    pthread_condattr_init(&ca);
+    pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
+    pthread_cond_init(&io->wcv, &ca);
+    pthread_condattr_destroy(&ca);
+    pthread_mutex_init(&io->wm, NULL);
     for (int i = 0; i < rt->opt.n_io_devices; i++) {
         io_device_t *d = &io->dev[io->n];
         d->rt = rt;
@@ -916,6 +1001,13 @@ static int modbus_open_layer(runtime_t *rt, void **state, char *err, size_t errl
         struct timespec ms = { 0, 1000000 };
         nanosleep(&ms, NULL);
     }
+    rc = pthread_create(&io->watch, NULL, loss_watch, io);
+    if (rc != 0) {
+        snprintf(err, errlen, "cannot start the loss watch of the I/O devices: %s", strerror(rc));
+        modbus_close_layer(io);
+        return -1;
+    }
+    io->watch_started = true;
     *state = io;
     return 0;
 }
