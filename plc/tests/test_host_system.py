@@ -32,10 +32,11 @@ class Plc:
 
     def __init__(self, tmp: Path):
         self.tmp, self.port, self.proc = tmp, free_port(), None
+        self.src = REPO / "st_src"                 # another application: a copy with other generated tables
         self.log = tmp / "plc.log"
 
     def start(self, timeout: float = 180.0) -> None:
-        cmd = [sys.executable, "-m", "plc.cli", "run", str(REPO / "st_src"), "--config",
+        cmd = [sys.executable, "-m", "plc.cli", "run", str(self.src), "--config",
                str(REPO / "configs" / "runtime.toml"), "--port", str(self.port), "--retain",
                str(self.tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")]
         offset = self.log.stat().st_size if self.log.exists() else 0

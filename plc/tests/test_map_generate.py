@@ -111,7 +111,33 @@ def test_mb2hal_transactions_cover_exactly_the_wired_signals_at_their_addresses(
                 seen[name] = first + k
         if "write" in tx["MB_TX_CODE"]:
             assert not any(n.startswith("unused-") for n in tx["PIN_NAMES"].split(","))
-    assert seen == {s.name: s.address for s in RMAP.signals if s.hal}
+    want = {}
+    for s in RMAP.signals:
+        if s.hal and s.type == "DINT":          # two registers, high word first: pins <name>-hi, <name>-lo
+            want[f"{s.name}-hi"], want[f"{s.name}-lo"] = s.address, s.address + 1
+        elif s.hal:
+            want[s.name] = s.address
+    assert seen == want
+
+
+def test_a_dint_read_by_linuxcnc_is_joined_signed_and_scaled_in_hal():
+    """MbxZ (DINT, thousandths): hi * 65536 + lo in a sum2, then a lincurve to the signed value times 0.001."""
+    hal = OUT["configs/linuxcnc/atc_iov2.hal"]
+    assert "net atc-mbx-z-hi mb2hal.atc-words-in-3.MbxZ-hi.float => atc-join-mbx-z.in0" in hal
+    assert "net atc-mbx-z-lo mb2hal.atc-words-in-3.MbxZ-lo.float => atc-join-mbx-z.in1" in hal
+    assert "setp atc-join-mbx-z.gain0 65536" in hal
+    points = dict(re.findall(r"setp atc-sign-mbx-z\.x-val-(\d\d) (\S+)", hal))
+    values = dict(re.findall(r"setp atc-sign-mbx-z\.y-val-(\d\d) (\S+)", hal))
+    curve = sorted((float(points[k]), float(values[k])) for k in points)
+
+    def through(raw: int) -> float:             # lincurve: linear between the points
+        for (x0, y0), (x1, y1) in zip(curve, curve[1:]):
+            if x0 <= raw <= x1:
+                return y0 + (raw - x0) * (y1 - y0) / (x1 - x0)
+        raise AssertionError(raw)
+    for value in (-50000, -5000, -1, 0, 1, 20000, 2147483647):
+        raw = value & 0xFFFFFFFF
+        assert abs(through((raw >> 16) * 65536 + (raw & 0xFFFF)) - value / 1000) < 1e-6, value
 
 
 def _hal(rel: str) -> list[list[str]]:

@@ -8,6 +8,10 @@
     plc host home | status
     plc host                    interactive prompt
 
+The host serves the PLC's sequence mailbox (MbxHostActive): each MOVEABS, MOVETOEDGE, FEEDRATE, SPINDLE, MESSAGE or
+DIALOG request is printed as a CNC would execute it and answered; DIALOG and MESSAGE ask the operator (OK/cancel)
+unless --answer ok|cancel answers them (scripted use).  --no-mailbox leaves the answers to the PLC itself.
+
 Exit status: 0 every command completed; 3 every command ran but a soft fault skipped a change (the G-code
 program would continue, with #5600 = 1); 1 a command failed (hard fault, abort, timeout, lost link), the
 commands after it did not run; 2 usage, map or connection problems.  Pocket = tool number unless --tool-table gives another (LinuxCNC .tbl: T<n> P<p>).
@@ -20,6 +24,7 @@ import sys
 from pathlib import Path
 
 from ..map.cli import default_map
+from .mailbox import Mailbox, mailbox_in_map, message_texts
 from .modbus import LinkError, ModbusClient, ModbusException
 from .session import HostError, Session, Timeouts
 from .tags import MapError, load_map
@@ -58,6 +63,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="longest wait for a prepare or a change (default 60)")
     p.add_argument("--no-start-change", action="store_true",
                    help="skip the start-change handshake (iov2 without -support-start-change)")
+    p.add_argument("--no-mailbox", action="store_true",
+                   help="do not serve the sequence mailbox: the PLC acknowledges moves and dialogs itself")
+    p.add_argument("--answer", choices=("ask", "ok", "cancel"), default="ask",
+                   help="DIALOG/MESSAGE answer: ask the operator (default), or answer OK / cancel automatically")
+    p.add_argument("--edge", choices=("reached", "none"), default="reached",
+                   help="what a MOVETOEDGE finds: the edge (default) or none over the whole distance")
+    p.add_argument("--sequences", type=Path, metavar="FILE",
+                   help="sequence set whose MESSAGE/DIALOG texts are shown (default: configs/sequences/"
+                        "sequences.toml beside the map's folder, when it exists)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the result and errors")
     return p
 
@@ -199,6 +213,16 @@ def main(argv: list[str]) -> int:
         except ValueError as exc:
             print(f"plc host: error: {exc}", file=sys.stderr)
             return EXIT_USAGE
+    texts: dict[int, str] = {}
+    if not args.no_mailbox:
+        index = args.sequences or (args.map or default_map()).resolve().parent.parent / "configs" / "sequences" \
+            / "sequences.toml"
+        if args.sequences or index.exists():
+            try:
+                texts = message_texts(index)
+            except (OSError, ValueError) as exc:
+                print(f"plc host: error: {index}: {exc}", file=sys.stderr)
+                return EXIT_USAGE
     host = args.host or rmap.linuxcnc.host
     port = args.port if args.port is not None else rmap.linuxcnc.port
     client = ModbusClient(host, port, unit=rmap.linuxcnc.slave_id)
@@ -209,12 +233,18 @@ def main(argv: list[str]) -> int:
         return EXIT_USAGE
     session = Session(rmap, client, say=out, timeouts=Timeouts(request=args.timeout),
                       start_change=not args.no_start_change)
+    mailbox = None
+    if not args.no_mailbox and mailbox_in_map(session.tags):
+        mailbox = Mailbox(session.tags, say=out, answer=args.answer, edge=args.edge == "reached", texts=texts)
+        session.attach_mailbox(mailbox)
     status = EXIT_FAILED
     try:
         s = session.start()
         if not args.quiet:
             say(f"connected to {host}:{port}: tool {session.tool_number} in spindle"
                 + (f", fault latched ({session.fault_reason})" if session.faulted else ""))
+        if mailbox is not None:
+            mailbox.announce()
         if args.commands:
             status = run_commands(session, args.commands, pockets, out)
         else:
@@ -240,6 +270,11 @@ def main(argv: list[str]) -> int:
         status = 130
     finally:
         session.stop()
+        if mailbox is not None:
+            try:
+                mailbox.retire()
+            except Exception:                 # the link may be gone: the PLC's default is FALSE after a restart
+                pass
         client.close()
     return status
 

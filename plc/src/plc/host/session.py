@@ -80,10 +80,17 @@ class Session:
     _alive: tuple = ()
     _alive_at: float = 0.0
     _names: dict | None = None          # signal -> value -> name (loaded on the first status)
+    mailbox: object | None = None       # a host.mailbox.Mailbox served on every poll (attach_mailbox)
 
     def __post_init__(self) -> None:
         self.tags = Tags(self.rmap, self.client)
         self.watch = tuple(n for n in WATCH if self.tags.has(n))
+
+    def attach_mailbox(self, mailbox) -> None:
+        """Serve the PLC's sequence mailbox on every poll (also while a change waits for tool-changed)."""
+        from .mailbox import REQUEST
+        self.mailbox = mailbox
+        self.watch = self.watch + tuple(n for n in REQUEST if n not in self.watch)
 
     # ---------------------------------------------------------------- start / stop --
     def start(self) -> dict:
@@ -141,6 +148,8 @@ class Session:
             raise LinkLost(f"the PLC stopped: PlcAlive and PlcHeartbeat unchanged for more than "
                            f"{self.rmap.link.plc_timeout_ms} ms (program stopped or faulted?)")
         self._fault_step(s)
+        if self.mailbox is not None:
+            self.mailbox.step(s)
         return s
 
     def _fault_step(self, s: dict) -> None:

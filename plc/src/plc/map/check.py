@@ -249,8 +249,11 @@ def _check_hal(rmap: RegisterMap, sig: Signal, diags: Diagnostics) -> None:
         diags.error(where, f"{sig.name}: only signals exchanged with the host can be wired to LinuxCNC "
                     f"(this one is {sig.direction})")
         return
-    if sig.type not in ("BOOL", "INT", "UINT"):
-        diags.error(where, f"{sig.name}: mb2hal pins carry BOOL, INT or UINT here, not {sig.type}")
+    if sig.type == "DINT" and sig.direction == "plc_to_host" and "." not in sig.hal:
+        pass            # two registers joined in HAL into a float signal (gen_linuxcnc)
+    elif sig.type not in ("BOOL", "INT", "UINT"):
+        diags.error(where, f"{sig.name}: mb2hal pins carry BOOL, INT or UINT here (and DINT read by the host into "
+                    f"a bare HAL signal), not {sig.type}")
         return
     if not HAL_NAME.match(sig.hal):
         diags.error(where, f"{sig.name}: '{sig.hal}' is not a HAL pin or signal name")

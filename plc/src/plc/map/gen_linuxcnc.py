@@ -17,7 +17,9 @@ toolchanger-fault reaches iov2 only after toolchanger-reason has.  FC03 values a
 every INT register wired to HAL goes through a lincurve that maps 32768..65535 to -32768..-1 and a
 conv_float_s32.  The PLC toggles [link] plc_alive; a retriggerable oneshot of plc_timeout_ms turns a missing
 edge (PLC stopped, link lost, mb2hal gone) into E-stop through iocontrol.0.emc-enable-in.  A siggen sawtooth
-is the host heartbeat written to [link] host_heartbeat.
+is the host heartbeat written to [link] host_heartbeat.  A DINT register pair read by LinuxCNC (the mailbox
+arguments) arrives as two unsigned words, pins <name>-hi and <name>-lo: a sum2 joins them (hi * 65536 + lo), a
+lincurve restores the sign and applies the signal's scale, so its HAL signal is a float in engineering units.
 """
 from __future__ import annotations
 
@@ -48,17 +50,20 @@ class Tx:
     def bits(self) -> bool:
         return "coils" in self.code
 
-    def pin(self, rmap: RegisterMap, sig: Signal) -> str:
-        """Full HAL name of the mb2hal pin that carries `sig` (mb2hal VERSION 1.1 pin names)."""
+    def pin(self, rmap: RegisterMap, sig: Signal, part: str = "") -> str:
+        """Full HAL name of the mb2hal pin that carries `sig` (mb2hal VERSION 1.1 pin names); a DINT has two,
+        part "-hi" and "-lo"."""
         suffix = "bit" if self.bits else ("int" if self.writes else "float")
-        return f"{rmap.linuxcnc.component}.{self.name}.{sig.name}.{suffix}"
+        if sig.type == "DINT" and not part:
+            part = "-hi"
+        return f"{rmap.linuxcnc.component}.{self.name}.{sig.name}{part}.{suffix}"
 
 
 def plan(rmap: RegisterMap, diags: Diagnostics | None = None) -> list[Tx]:
     """The mb2hal transactions for the signals with `hal`, in INI order; problems go to diags."""
     diags = diags if diags is not None else Diagnostics()
     wired = [s for s in rmap.signals if s.hal and s.direction in ("host_to_plc", "plc_to_host")
-             and s.type in ("BOOL", "INT", "UINT")]
+             and (s.type in ("BOOL", "INT", "UINT") or (s.type == "DINT" and s.direction == "plc_to_host"))]
     txs: list[Tx] = []
     words_out = sorted((s for s in wired if s.direction == "host_to_plc" and s.type != "BOOL"),
                        key=lambda s: s.address)
@@ -79,7 +84,7 @@ def plan(rmap: RegisterMap, diags: Diagnostics | None = None) -> list[Tx]:
         txs.append(_tx(_numbered("atc-words-in", i), "fnct_03_read_holding_registers", run, True))
     for tx in txs:
         for _name, sig in tx.pins:
-            if sig is not None and len(tx.pin(rmap, sig)) > HAL_NAME_LEN:
+            if sig is not None and len(tx.pin(rmap, sig, "-lo" if sig.type == "DINT" else "")) > HAL_NAME_LEN:
                 diags.error(rmap.pos(sig, "name"), f"{sig.name}: HAL pin {tx.pin(rmap, sig)} is longer than "
                             f"{HAL_NAME_LEN} characters", "shorten the signal name")
     return txs
@@ -92,7 +97,7 @@ def _numbered(base: str, i: int) -> str:
 def _runs(signals: list[Signal], gap: int, limit: int) -> list[list[Signal]]:
     runs: list[list[Signal]] = []
     for sig in signals:
-        if runs and sig.address - runs[-1][-1].address - 1 <= gap and sig.address - runs[-1][0].address < limit:
+        if runs and sig.address - runs[-1][-1].last - 1 <= gap and sig.last - runs[-1][0].address < limit:
             runs[-1].append(sig)
         else:
             runs.append([sig])
@@ -102,9 +107,15 @@ def _runs(signals: list[Signal], gap: int, limit: int) -> list[list[Signal]]:
 def _tx(name: str, code: str, run: list[Signal], spares: bool) -> Tx:
     tx = Tx(name, code, run[0].address)
     by_address = {s.address: s for s in run}
-    for a in range(run[0].address, run[-1].address + 1):
+    for s in run:
+        if s.type == "DINT":
+            by_address[s.address + 1] = s
+    for a in range(run[0].address, run[-1].last + 1):
         sig = by_address.get(a)
-        tx.pins.append((sig.name, sig) if sig is not None else (f"unused-{a}", None))
+        if sig is not None and sig.type == "DINT":
+            tx.pins.append((sig.name + ("-hi" if a == sig.address else "-lo"), sig))
+        else:
+            tx.pins.append((sig.name, sig) if sig is not None else (f"unused-{a}", None))
     return tx
 
 
@@ -146,7 +157,8 @@ def mb2hal_ini(rmap: RegisterMap) -> str:
     for i, tx in enumerate(txs):
         names = [n for n, _s in tx.pins]
         out += ["", f"[TRANSACTION_{i:02d}]"]
-        described = [f"{sig.name} {sig.table} {sig.address}" for _n, sig in tx.pins if sig is not None]
+        described = [f"{sig.name} {sig.table} {sig.address}" for n, sig in tx.pins
+                     if sig is not None and not (sig.type == "DINT" and n.endswith("-lo"))]
         out.append("# " + "; ".join(described) if len(described) <= 4 else
                    f"# {tx.pins[0][0]} .. {tx.pins[-1][0]}: {len(described)} signals from {tx.first}")
         if i == 0:
@@ -231,10 +243,13 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
     settle_names = [f"atc-settle-{_net(s.name)[4:]}" for s in settle]
     if settle_names:
         comps.append(("timedelay", settle_names, ""))
-    sign_names = [f"atc-sign-{_net(s.name)[4:]}" for s in signed]
+    joined = [sig for tx, sig in where.values() if not tx.writes and sig.type == "DINT"]
+    sign_names = [f"atc-sign-{_net(s.name)[4:]}" for s in signed + joined]
     if sign_names:
         comps.append(("lincurve", sign_names, "personality=" + ",".join("4" for _ in sign_names)))
         comps.append(("conv_float_s32", [f"atc-s32-{_net(s.name)[4:]}" for s in signed], ""))
+    if joined:
+        comps.append(("sum2", [f"atc-join-{_net(s.name)[4:]}" for s in joined], ""))
     watch = alive is not None and alive.name in where
     if watch:
         comps.append(("oneshot", ["atc-link-watch"], ""))
@@ -258,7 +273,9 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
     out += ["", "# ---- PLC -> CNC (plc_to_host)"]
     for tx in txs:
         if not tx.writes:
-            for _n, sig in tx.pins:
+            for pin_name, sig in tx.pins:
+                if pin_name.endswith("-lo") and sig is not None and sig.type == "DINT":
+                    continue            # wired with its -hi pin
                 if sig is not None and sig.name in where and not (alive is not None and sig.name == alive.name):
                     out += _wire_in(rmap, tx, sig, settle, signed, _endpoint(sig, pins))
     out.append("")
@@ -273,9 +290,21 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
         out.append("")
     if signed:
         out.append("# ---- INT registers arrive unsigned (0..65535): 32768..65535 -> -32768..-1")
-        for name in sign_names:
+        for name in sign_names[:len(signed)]:
             for k, (x, y) in enumerate([(0, 0), (32767, 32767), (32768, -32768), (65535, -1)]):
                 out += [f"setp {name}.x-val-{k:02d} {x}", f"setp {name}.y-val-{k:02d} {y}"]
+        out.append("")
+    if joined:
+        out.append("# ---- DINT register pairs: hi * 65536 + lo (0..4294967295), 2147483648.. -> negative, times "
+                   "the signal's scale")
+        for sig in joined:
+            net = _net(sig.name)
+            scale = sig.scale if sig.scale else 1.0
+            out += [f"setp atc-join-{net[4:]}.gain0 65536", f"setp atc-join-{net[4:]}.gain1 1"]
+            for k, (x, y) in enumerate([(0, 0), (2147483647, 2147483647), (2147483648, -2147483648),
+                                        (4294967295, -1)]):
+                out += [f"setp atc-sign-{net[4:]}.x-val-{k:02d} {x}",
+                        f"setp atc-sign-{net[4:]}.y-val-{k:02d} {_num(y * scale)}"]
         out.append("")
     if watch:
         tx, sig = where[alive.name]
@@ -337,6 +366,10 @@ def _wire_in(rmap: RegisterMap, tx: Tx, sig: Signal, settle: list[Signal], signe
     net = _net(sig.name)
     name = net if target else (sig.hal if "." not in sig.hal else net)
     arrow = f" => {target}" if target else ""
+    if sig.type == "DINT":
+        join = f"atc-join-{net[4:]}"
+        return [f"net {net}-hi {pin} => {join}.in0", f"net {net}-lo {tx.pin(rmap, sig, '-lo')} => {join}.in1",
+                f"net {net}-raw {join}.out => atc-sign-{net[4:]}.in", f"net {name} atc-sign-{net[4:]}.out{arrow}"]
     if any(s.name == sig.name for s in signed):
         conv = f"atc-s32-{net[4:]}"
         return [f"net {net}-raw {pin} => atc-sign-{net[4:]}.in",

@@ -1,0 +1,133 @@
+"""System tests of `plc host` serving the sequence mailbox: `plc run --io sim` with the real application (and a
+variant whose Get Tool asks a DIALOG and shows a MESSAGE), driven by `plc host` in its own process.  The expected
+requests are read from the shipped sequence files, not written down here.  Loopback only; every wait is bounded."""
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from test_host_system import REPO, Plc, ok
+
+SEQ_DIR = REPO / "configs" / "sequences"
+
+
+def expected_requests(*names: str) -> list[str]:
+    """The mailbox lines the shipped .seq files ask for, in order, as `plc host` prints them."""
+    values = tomllib.loads((SEQ_DIR / "sequences.toml").read_text())["values"]
+
+    def num(word: str) -> str:
+        v = float(values[word]) if word.upper().startswith("P") else float(word)
+        return f"{v:.3f}".rstrip("0").rstrip(".") if v != int(v) else f"{int(v)}"
+
+    out = []
+    for name in names:
+        for line in (SEQ_DIR / name).read_text().splitlines():
+            line = line.split("/", 1)[0].strip()
+            words = line.split()
+            if not words:
+                continue
+            if words[0] == "MOVEABS":
+                pairs = re.findall(r"([XYZABC])\s*(\S+)", " ".join(words[1:]))
+                out.append("MOVEABS " + " ".join(f"{a}{num(v)}" for a, v in pairs))
+            elif words[0] == "FEEDRATE":
+                out.append(f"FEEDRATE {float(num(words[1])) / 1000:g} units/s")
+    return out
+
+
+def served(out: str) -> list[tuple[int, str]]:
+    """(id, request) of every mailbox line `plc host` printed."""
+    lines = re.findall(r"^mailbox #(\d+): (.*?)(?: \(|: )", out, re.MULTILINE)
+    return [(int(i), r) for i, r in lines]
+
+
+@pytest.fixture(scope="module")
+def plc(tmp_path_factory):
+    p = Plc(tmp_path_factory.mktemp("plc"))
+    p.start()
+    yield p
+    p.stop()
+
+
+def test_the_host_executes_the_put_and_get_moves_in_sequence_order(plc):
+    ok(plc.host("--answer", "ok", "clear", "T2 M6"))
+    out = ok(plc.host("--answer", "ok", "T4 M6"))
+    assert "mailbox: this host executes the sequences' requests (MbxHostActive)" in out
+    got = served(out)
+    assert [r for _, r in got] == expected_requests("put.seq", "get.seq"), out
+    ids = [i for i, _ in got]
+    assert all(b == a + 1 for a, b in zip(ids, ids[1:])), f"request ids not consecutive: {ids}"
+    client, tags = plc.tags()
+    with client:
+        s = tags.read("MbxAnswerId", "MbxRequestId", "MbxHostActive", "ToolInSpindle", "MbxOpcode")
+    assert s["MbxAnswerId"] == ids[-1] == s["MbxRequestId"]
+    assert s["MbxHostActive"] is False, "the host leaves MbxHostActive FALSE when it exits"
+    assert s["ToolInSpindle"] == 4 and s["MbxOpcode"] == 0
+
+
+def test_without_the_mailbox_the_plc_answers_itself(plc):
+    out = ok(plc.host("--no-mailbox", "T3 M6"))
+    assert "mailbox" not in out
+    assert out.splitlines()[-1] == "tool 3 in spindle"
+
+
+# ---- a variant application whose Get Tool asks the operator ----------------------------------------------------
+
+DIALOG_TEXT = "Check the holder of the new tool"
+MESSAGE_TEXT = "Get Tool begins"
+
+
+@pytest.fixture(scope="module")
+def dialog_plc(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("dialog")
+    seqs = tmp / "sequences"
+    shutil.copytree(SEQ_DIR, seqs)
+    get = (seqs / "get.seq").read_text().splitlines()
+    at = next(i for i, line in enumerate(get) if line.startswith("WAITIN 19 1"))
+    get[at:at] = [f"MESSAGE {MESSAGE_TEXT}", f"DIALOG {DIALOG_TEXT}"]
+    (seqs / "get.seq").write_text("\n".join(get) + "\n")
+    src = tmp / "st_src"
+    shutil.copytree(REPO / "st_src", src)
+    res = subprocess.run([sys.executable, "-m", "plc.cli", "seq", "compile", str(seqs / "sequences.toml"), "--out",
+                          str(src / "sequence" / "generated" / "SequenceTables.st")],
+                         cwd=REPO / "plc", capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    p = Plc(tmp)
+    p.src = src
+    p.start(timeout=600.0)
+    p.seqs = seqs
+    yield p
+    p.stop()
+
+
+def test_a_dialog_answered_ok_continues_and_a_message_is_skipped_from_m6(dialog_plc):
+    out = ok(dialog_plc.host("--sequences", str(dialog_plc.seqs / "sequences.toml"), "--answer", "ok", "clear",
+                             "T2 M6"))
+    assert re.search(rf"mailbox #\d+: DIALOG \d+: {DIALOG_TEXT}: answered OK", out), out
+    assert "MESSAGE" not in out, "a MESSAGE of a sequence run from M6 must be skipped by the PLC"
+    assert out.splitlines()[-1] == "tool 2 in spindle"
+
+
+def test_a_dialog_asked_at_the_prompt(dialog_plc):
+    cmd = [sys.executable, "-m", "plc.cli", "host", "--port", str(dialog_plc.port), "--sequences",
+           str(dialog_plc.seqs / "sequences.toml"), "T3 M6"]
+    res = subprocess.run(cmd, cwd=REPO / "plc", input="ok\n", capture_output=True, text=True, timeout=90)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert re.search(rf"DIALOG \d+: {DIALOG_TEXT}  \[OK/cancel\]", res.stdout), res.stdout
+    assert res.stdout.splitlines()[-1] == "tool 3 in spindle"
+
+
+def test_a_dialog_cancelled_aborts_the_change_with_a_fault(dialog_plc):
+    res = dialog_plc.host("--sequences", str(dialog_plc.seqs / "sequences.toml"), "--answer", "cancel", "T5 M6")
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert re.search(rf"DIALOG \d+: {DIALOG_TEXT}: answered CANCEL", res.stdout), res.stdout
+    assert re.search(r"toolchanger fault -\d+", res.stdout), res.stdout
+    client, tags = dialog_plc.tags()
+    with client:
+        s = tags.read("ToolInSpindle", "FaultReason", "CarouselMotorOn")
+    assert s["ToolInSpindle"] != 5 and s["FaultReason"] < 0 and not s["CarouselMotorOn"]
