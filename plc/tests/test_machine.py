@@ -81,3 +81,32 @@ def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
     proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
     assert proc.returncode == 1
     assert "pocket_codes: code 5 is used twice" in proc.stderr
+
+
+RACK = ROOT / "configs" / "examples" / "rack8" / "machine.toml"
+
+
+def test_a_rack_machine_generates_fixed_pockets_and_its_positions(tmp_path):
+    out = tmp_path / "FB_MachineConfig.st"
+    proc = machine("generate", "--config", str(RACK), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    st = out.read_text()
+    assert "FixedPockets := TRUE;" in st and "RackPlant.positions := 8;" in st
+    assert "RackPlant.x[8] := 105000;" in st and "RackPlant.y[1] := 150000;" in st   # mm -> 1/1000 mm
+    assert "RackPlant.gripZ := -50000;" in st and "Rotary.homing := E_RotaryHoming#HomingNone;" in st
+    assert "FixedPockets := FALSE;" in GENERATED.read_text()
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda t: t + '\n[carousel]\npockets = 6\ninputs = "code"\noutputs = "separate"\nhoming = "none"\n',
+     "either a [carousel] or a [rack]"),
+    (lambda t: t.replace("x = [-105.0, -75.0,", "x = [-75.0,"), "[rack] x: 7 values for 8 positions"),
+    (lambda t: t.replace("grip_z = -50.0", "grip_z = \"low\""), "[rack] grip_z: expected a number"),
+    (lambda t: t.replace("grip_z = -50.0", ""), "[rack] grip_z is required"),
+])
+def test_a_bad_rack_is_reported(tmp_path, change, message):
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(change(RACK.read_text()))
+    proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
+    assert proc.returncode == 1 and message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
