@@ -131,3 +131,34 @@ def test_a_dialog_cancelled_aborts_the_change_with_a_fault(dialog_plc):
     with client:
         s = tags.read("ToolInSpindle", "FaultReason", "CarouselMotorOn")
     assert s["ToolInSpindle"] != 5 and s["FaultReason"] < 0 and not s["CarouselMotorOn"]
+
+
+# ---- the example rack machine (configs/examples/rack8): fixed pockets, positions from Q coordinates ------------
+
+RACK = REPO / "configs" / "examples" / "rack8"          # its sequences; the machine is rack8.toml beside it
+
+
+@pytest.fixture(scope="module")
+def rack_plc(tmp_path_factory):
+    from machine_project import project_for
+    tmp = tmp_path_factory.mktemp("rack")
+    root = project_for("rack8", tmp)            # a copy of the project after `plc machine use rack8`
+    p = Plc(tmp)
+    p.src = root / "st_src"
+    p.start(timeout=600.0)
+    yield p
+    p.stop()
+
+
+def test_the_rack_example_changes_tools_at_their_q_positions(rack_plc):
+    values = tomllib.loads((RACK / "sequences.toml").read_text())["values"]
+    out = ok(rack_plc.host("--answer", "ok", "--sequences", str(RACK / "sequences.toml"), "T2 M6", "T7 M6"))
+    xy = re.findall(r"MOVEABS X(-?[0-9.]+) Y(-?[0-9.]+)", out)
+    want = [(values["T2Q1"], values["T2Q2"]), (values["T2Q1"], values["T2Q2"]), (values["T7Q1"], values["T7Q2"])]
+    assert [(float(x), float(y)) for x, y in xy] == [(float(x), float(y)) for x, y in want], out
+    client, tags = rack_plc.tags()
+    with client:
+        s = tags.read("ToolInSpindle", "SimSpindleTool", "PocketTool2", "PocketTool7", "CarouselMotorOn")
+    assert s["ToolInSpindle"] == 7 and s["SimSpindleTool"] == 7, s        # the simulated rack gave tool 7
+    assert s["PocketTool2"] == 2 and s["PocketTool7"] == 0, s
+    assert not s["CarouselMotorOn"]

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -81,3 +82,43 @@ def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
     proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
     assert proc.returncode == 1
     assert "pocket_codes: code 5 is used twice" in proc.stderr
+
+
+RACK = ROOT / "configs" / "examples" / "rack8.toml"
+
+
+def test_a_rack_machine_generates_fixed_pockets_and_its_positions(tmp_path):
+    from machine_project import project_for
+    root = project_for("rack8", tmp_path)             # a copy of the project after `plc machine use rack8`
+    st = (root / "st_src" / "app" / "generated" / "FB_MachineConfig.st").read_text()
+    assert "FixedPockets := TRUE;" in st and "RackPlant.positions := 8;" in st
+    assert "RackPlant.x[8] := 105000;" in st and "RackPlant.y[1] := 150000;" in st   # mm -> 1/1000 mm
+    assert "RackPlant.gripZ := -50000;" in st and "Rotary.homing := E_RotaryHoming#HomingNone;" in st
+    # no carousel lines; the tool-present sensor is the register map's ToolPresent channel, not a constant
+    assert "Channels.home := -1;" in st and "Channels.pocket := -1;" in st
+    tool_present = re.search(r'name = "ToolPresent"\ntable = "discrete_input"\naddress = (\d+)',
+                             (ROOT / "modbus_map" / "map.toml").read_text()).group(1)
+    assert f"Channels.toolPresent := {tool_present};" in st
+    table = (root / "configs" / "linuxcnc" / "atc-sim.tbl").read_text().splitlines()
+    assert [int(re.match(r"T(\d+) P(\d+)", row).group(2)) for row in table] == list(range(1, 9)), table
+    seqs = (root / "configs" / "examples" / "rack8" / "sequences.toml").read_text()
+    assert re.search(r"(?m)^tools = 8\b", seqs)
+    assert "FixedPockets := FALSE;" in GENERATED.read_text()
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda t: t + '\n[carousel]\npockets = 6\ninputs = "code"\noutputs = "separate"\nhoming = "none"\n',
+     '[carousel] belongs to a machine of kind "carousel"'),
+    (lambda t: t.replace('kind = "fixed-pockets"', 'kind = "carousel"'),
+     '[rack] belongs to a machine of kind "fixed-pockets"'),
+    (lambda t: re.sub(r"(?s)\[rack\].*?(?=\n\[changer\])", "", t), "[rack] positions is required"),
+    (lambda t: t.replace("x = [-105.0, -75.0,", "x = [-75.0,"), "[rack] x: 7 values for 8 positions"),
+    (lambda t: t.replace("grip_z = -50.0", "grip_z = \"low\""), "[rack] grip_z: expected a number"),
+    (lambda t: t.replace("grip_z = -50.0", ""), "[rack] grip_z is required"),
+])
+def test_a_bad_rack_is_reported(tmp_path, change, message):
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(change(RACK.read_text()))
+    proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
+    assert proc.returncode == 1 and message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -5,6 +5,11 @@ live in one TOML file that integrators edit.  `plc machine check` rejects a bad 
 lines before anything runs; `plc machine generate` writes st_src/app/generated/FB_MachineConfig.st, a function
 block whose outputs are the configuration structures (an FB, because MATIEC rejects a FUNCTION called without
 arguments).  `plc machine check` also fails when the generated file is not what the TOML says (drift).
+
+A machine "with fixed pockets" (the seed's rack changer: no carousel, the spindle fetches each tool from its own
+rack position) has a [rack] section instead of [carousel]: FixedPockets is TRUE (a prepare never turns anything),
+the positioner gets a neutral configuration it never uses, and [rack] x/y/grip_z describe the rack for the
+simulated plant (the sequences carry the same positions as Q coordinates).
 """
 from __future__ import annotations
 
@@ -65,7 +70,9 @@ class Checker:
         self.problem(self.line_of(section, key), message)
 
 
-KINDS = {"carousel": "rotary toolchanger (the Logosol manual's carousel)"}   # room for e.g. "fixed-pockets"
+KINDS = {"carousel": "rotary toolchanger (the Logosol manual's carousel): [carousel] and [channels]",
+         "fixed-pockets": "a rack of tool holders the spindle visits (no carousel): [rack]"}
+KIND_SECTION = {"carousel": "carousel", "fixed-pockets": "rack"}
 MAX_POCKETS = 50            # the Logosol limit; the ST pocket tables are ARRAY[1..50]
 MAX_CHANNEL = 799           # discrete inputs / coils of OpenPLC's map (%IX0.0..%IX99.7, %QX0.0..%QX99.7)
 
@@ -84,7 +91,7 @@ LINES = {
 # the changer lines the sequences use by channel (FB_MachineConfig.Channels): ST field -> register-map signal
 MAP_CHANNELS = {"armAtForward": "ArmAtForward", "armAtReverse": "ArmAtReverse", "colletOpened": "ColletOpened",
                 "lengthSensor": "ToolLengthSensor", "brakeOff": "BrakeOff", "armForward": "ArmForward",
-                "colletOpen": "ColletOpen"}
+                "colletOpen": "ColletOpen", "toolPresent": "ToolPresent"}
 
 
 SCHEMA = {
@@ -99,12 +106,17 @@ SCHEMA = {
         "invert_home": (bool,), "invert_pocket": (bool,), "invert_on": (bool,), "invert_plus_dir": (bool,),
         "invert_minus_dir": (bool,), "invert_code": (list, bool), "pocket_codes": (list, int),
     },
+    "rack": {"positions": (int, 1, 50), "x": (list, float), "y": (list, float), "grip_z": (float, -100000, 100000),
+             "tolerance": (float, 0.001, 100)},
     "changer": {"brake_release_ms": (int, 0, 10000), "auto_home": (bool,), "tool_sensor": (bool,)},
     "simulation": {"pocket_time_ms": (int, 1, 10000), "coast_ms": (int, 0, 10000), "skew_scans": (int, 0, 100),
                    "arm_travel_ms": (int, 1, 60000), "collet_ms": (int, 1, 60000), "brake_ms": (int, 0, 60000)},
 }
 REQUIRED = {"carousel": ("pockets", "inputs", "outputs", "homing")}
 DEFAULT_SEQUENCES = "configs/sequences/sequences.toml"
+REQUIRED_RACK = {"rack": ("positions", "x", "y", "grip_z")}
+# the positioner's configuration on a rack machine: never commanded, neutral (no homing, nothing to count)
+RACK_ROTARY = {"inputs": "code", "outputs": "enable+positive-dir", "homing": "none"}
 
 
 def load(path: Path, label: str | None = None) -> tuple[dict | None, Checker]:
@@ -135,7 +147,14 @@ def load(path: Path, label: str | None = None) -> tuple[dict | None, Checker]:
                 ck.error(sec, key, f"[{sec}] {key}: unknown setting")
                 continue
             check_value(ck, sec, key, v, rule)
-    for sec, keys in REQUIRED.items():
+    kind = data.get("machine", {}).get("kind", "carousel") if isinstance(data.get("machine"), dict) else "carousel"
+    if kind in KINDS:
+        for sec in ("carousel", "rack"):
+            if sec in data and KIND_SECTION[kind] != sec:
+                want = next(k for k, v in KIND_SECTION.items() if v == sec)
+                ck.error(sec, None, f"[{sec}] belongs to a machine of kind \"{want}\"; [machine] kind = \"{kind}\" "
+                                    f"is described by [{KIND_SECTION[kind]}]")
+    for sec, keys in (REQUIRED_RACK if kind == "fixed-pockets" else REQUIRED).items():
         for k in keys:
             if k not in data.get(sec, {}):
                 ck.error(sec, None, f"[{sec}] {k} is required")
@@ -158,10 +177,15 @@ def check_value(ck: Checker, sec: str, key: str, v, rule) -> None:
     elif kind is int:
         if isinstance(v, bool) or not isinstance(v, int) or not (rule[1] <= v <= rule[2]):
             ck.error(sec, key, f"[{sec}] {key}: expected an integer {rule[1]}..{rule[2]}, got {v!r}")
+    elif kind is float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (rule[1] <= v <= rule[2]):
+            ck.error(sec, key, f"[{sec}] {key}: expected a number {rule[1]:g}..{rule[2]:g}, got {v!r}")
     elif kind is list:
-        if not isinstance(v, list) or not all(isinstance(x, rule[1]) and not (rule[1] is int and isinstance(x, bool))
+        want = (int, float) if rule[1] is float else rule[1]
+        if not isinstance(v, list) or not all(isinstance(x, want) and not (rule[1] is not bool and isinstance(x, bool))
                                               for x in v):
-            ck.error(sec, key, f"[{sec}] {key}: expected a list of {'true/false' if rule[1] is bool else 'integers'}")
+            what = {bool: "true/false", int: "integers", float: "numbers"}[rule[1]]
+            ck.error(sec, key, f"[{sec}] {key}: expected a list of {what}")
 
 
 def used_lines(car: dict) -> list[str]:
@@ -188,7 +212,7 @@ def line_channels(data: dict) -> dict[str, int]:
     ch = data.get("channels", {})
     codes = ch.get("code", [])
     out = {}
-    for key in used_lines(data["carousel"]):
+    for key in used_lines(data["carousel"]) if "carousel" in data else []:
         if key.startswith("code"):
             i = int(key[4:])
             if i <= len(codes):
@@ -198,7 +222,24 @@ def line_channels(data: dict) -> dict[str, int]:
     return out
 
 
+def is_rack(data: dict) -> bool:
+    """The machine has fixed pockets ([machine] kind = "fixed-pockets", described by [rack])."""
+    return "rack" in data
+
+
+def pockets(data: dict) -> int:
+    """Tool places of the machine: carousel pockets, or rack positions (pocket / position n holds tool n)."""
+    return data["rack"]["positions"] if is_rack(data) else data["carousel"]["pockets"]
+
+
 def cross_checks(ck: Checker, data: dict) -> None:
+    if is_rack(data):                   # no carousel: none of its checks apply, no carousel lines to place
+        rack = data["rack"]
+        for key in ("x", "y"):
+            if len(rack[key]) != rack["positions"]:
+                ck.error("rack", key, f"[rack] {key}: {len(rack[key])} values for {rack['positions']} positions "
+                         "(one per position)")
+        return
     car = data["carousel"]
     pockets = car["pockets"]
     uses_codes = "code" in car["inputs"]
@@ -286,13 +327,15 @@ def check_sequences(ck: Checker, data: dict, root: Path, label: str) -> None:
         ck.error("sequences", "index", f"[sequences] index: cannot read {index}: {e.strerror}")
         return
     line, tools = tools_line(text)
-    pockets = data["carousel"]["pockets"]
+    places = pockets(data)
+    sec, key = ("rack", "positions") if is_rack(data) else ("carousel", "pockets")
     check_sequence_outputs(ck, data, text, _rel(index, root))
-    if tools != pockets:
+    if tools != places:
         rel = _rel(index, root)
-        ck.error("carousel", "pockets",
-                 f"[carousel] pockets = {pockets}, but {rel}:{line} has tools = {tools}: the sequences must cover "
-                 f"tools 1..{pockets} (pocket n holds tool n); run `plc machine generate`, which writes it")
+        ck.error(sec, key,
+                 f"[{sec}] {key} = {places}, but {rel}:{line} has tools = {tools}: the sequences must cover "
+                 f"tools 1..{places} ({'position' if is_rack(data) else 'pocket'} n holds tool n); "
+                 "run `plc machine generate`, which writes it")
 
 
 def check_sequence_outputs(ck: Checker, data: dict, text: str, rel: str) -> None:
@@ -328,10 +371,16 @@ def st_bool(v: bool) -> str:
     return "TRUE" if v else "FALSE"
 
 
+def thousandths(v: float) -> int:
+    return int(round(v * 1000))
+
+
 def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
     """FB_MachineConfig: the machine description as ST structures. map_channels: ST_AtcChannels field -> channel
-    of the changer lines the register map places (MAP_CHANNELS)."""
-    car = data["carousel"]
+    of the changer lines the register map places (MAP_CHANNELS). A fixed-pocket machine gets a neutral positioner
+    configuration it never commands (RACK_ROTARY) and its rack in RackPlant."""
+    rack = data.get("rack")
+    car = data["carousel"] if rack is None else dict(RACK_ROTARY, pockets=rack["positions"])
     chg = data.get("changer", {})
     sim = data.get("simulation", {})
     chan = data.get("channels", {})
@@ -347,6 +396,8 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
            "    BrakeReleaseTime : TIME;            (* brake released this long before a pre-positioning turn *)",
            "    AutoHome : BOOL;                    (* run the Home sequence by itself after power-up *)",
            "    ToolSensor : BOOL;                  (* a tool-present sensor (ToolPresent) decides an unknown tool *)",
+           "    FixedPockets : BOOL;                (* a rack (fixed pockets): no carousel, prepares turn nothing *)",
+           "    RackPlant : ST_RackPlantConfig;     (* simulated rack, collet and tool-present sensor *)",
            "END_VAR",
            f"Rotary.pockets := {car['pockets']};",
            f"Rotary.inputDescription := E_RotaryInputs#{INPUTS[car['inputs']]};",
@@ -381,7 +432,15 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
             f"BrakeReleaseTime := {ms(chg.get('brake_release_ms', 500))};",
             f"AutoHome := {st_bool(chg.get('auto_home', True))};",
             f"ToolSensor := {st_bool(chg.get('tool_sensor', False))};",
-            "END_FUNCTION_BLOCK"]
+            f"FixedPockets := {st_bool(rack is not None)};"]
+    if rack is not None:
+        out += [f"RackPlant.positions := {rack['positions']};",
+                f"RackPlant.gripZ := {thousandths(rack['grip_z'])};",
+                f"RackPlant.tolerance := {thousandths(rack.get('tolerance', 0.5))};",
+                f"RackPlant.colletTime := {ms(sim.get('collet_ms', 100))};"]
+        for i, (x, y) in enumerate(zip(rack["x"], rack["y"]), 1):
+            out += [f"RackPlant.x[{i}] := {thousandths(x)};", f"RackPlant.y[{i}] := {thousandths(y)};"]
+    out.append("END_FUNCTION_BLOCK")
     return "\n".join(out) + "\n"
 
 
@@ -391,10 +450,12 @@ SIM_TOOLS = [(6.0, 10.0, "end mill 6 mm"), (8.0, 12.0, "end mill 8 mm"), (10.0, 
 
 
 def tool_table(data: dict) -> str:
-    """The LinuxCNC tool table of the simulated machine (generated from [carousel] pockets): tool n in pocket n,
-    as the changer holds them on its first start. No comment-only lines (LinuxCNC reads every line as a tool)."""
+    """The LinuxCNC tool table of the simulated machine (generated from [carousel] pockets or [rack] positions):
+    tool n in pocket n, as the changer holds them on its first start, in ascending pocket order (LinuxCNC 2.9
+    lost a tool of a table whose pockets were out of order). No comment-only lines (LinuxCNC reads every line as
+    a tool)."""
     rows = []
-    for n in range(1, data["carousel"]["pockets"] + 1):
+    for n in range(1, pockets(data) + 1):
         d, z, what = SIM_TOOLS[n - 1] if n <= len(SIM_TOOLS) else (2.0 + n % 10, 8.0 + n % 10, f"tool {n}")
         rows.append(f"T{n} P{n} D{d:.3f} Z+{z:.3f} ;{what}")
     return "\n".join(rows) + "\n"
@@ -443,7 +504,7 @@ def outputs(root: Path, data: dict, config_label: str) -> tuple[dict[str, str], 
     if tools is not None:
         lines = text.splitlines(keepends=True)
         lines[line - 1] = re.sub(r"tools(\s*)=(\s*)\d+", lambda m: f"tools{m.group(1)}={m.group(2)}"
-                                 f"{data['carousel']['pockets']}", lines[line - 1], count=1)
+                                 f"{pockets(data)}", lines[line - 1], count=1)
         files[rel] = "".join(lines)
     return files, []
 

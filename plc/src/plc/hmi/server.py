@@ -159,7 +159,8 @@ def _pockets(info: mapinfo.MapInfo, given: int | None) -> int:
         return given
     machine = info.rmap.root / "configs" / "machine.toml"
     try:
-        n = tomllib.loads(machine.read_text(encoding="utf-8")).get("carousel", {}).get("pockets")
+        data = tomllib.loads(machine.read_text(encoding="utf-8"))
+        n = data.get("carousel", {}).get("pockets") or data.get("rack", {}).get("positions")
         if isinstance(n, int) and 2 <= n <= 50:
             return n
     except (OSError, tomllib.TOMLDecodeError):
