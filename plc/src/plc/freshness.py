@@ -3,7 +3,7 @@
 `plc run` and `plc test` refuse to run a program built from stale generated files: the machine description
 (configs/machine.toml -> FB_MachineConfig, tool table, the sequence set's tool count), the register map
 (modbus_map/ -> AtcMain's declarations and wiring, HMI tags, LinuxCNC files, docs) and the sequences
-(configs/sequences/ -> SequenceTables.st). Each problem names the command that regenerates the files.
+(the machine's [sequences] index, default configs/sequences/ -> SequenceTables.st). Each problem names the command that regenerates the files.
 """
 from __future__ import annotations
 
@@ -52,22 +52,36 @@ def _map(root: Path) -> list[str]:
             for rel in drift(loaded, Diagnostics(), show_diff=False)]
 
 
+def sequence_index(root: Path) -> str:
+    """The sequence set the machine description names ([sequences] index), relative to root; SEQ_INDEX when the
+    description has none or cannot be read (its own check reports that)."""
+    import tomllib
+    from . import machine
+    try:
+        data = tomllib.loads((root / machine.DEFAULT_CONFIG).read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError):
+        return SEQ_INDEX
+    index = data.get("sequences", {}).get("index") if isinstance(data.get("sequences"), dict) else None
+    return index if isinstance(index, str) else SEQ_INDEX
+
+
 def _sequences(root: Path) -> list[str]:
     from .seq.assemble import check_set
     from .seq.diagnostics import Diagnostics as SeqDiagnostics
     from .seq.stgen import generate, stable_name
-    index, tables = root / SEQ_INDEX, root / SEQ_TABLES
+    rel = sequence_index(root)
+    index, tables = root / rel, root / SEQ_TABLES
     if not index.is_file():
         return []
-    fix = f"plc seq compile {SEQ_INDEX} --out {SEQ_TABLES}"
+    fix = f"plc seq compile {rel} --out {SEQ_TABLES}"
     diags = SeqDiagnostics()
     assembly = check_set(index, diags)
     if assembly is None or diags.errors:
-        return [d.render() for d in diags.errors][:10] + [f"  fix the sequences (plc seq check {SEQ_INDEX}), "
+        return [d.render() for d in diags.errors][:10] + [f"  fix the sequences (plc seq check {rel}), "
                                                           f"then run `{fix}`"]
     text = generate(assembly, stable_name(index), stable_name(tables))
     if not tables.is_file() or tables.read_text(encoding="utf-8") != text:
-        return [f"{SEQ_TABLES}: out of date with the sequences in configs/sequences/: run `{fix}`"]
+        return [f"{SEQ_TABLES}: out of date with the sequences of {rel}: run `{fix}`"]
     return []
 
 
