@@ -648,6 +648,13 @@ static void set_state(io_device_t *d, io_device_state_t s, uint64_t now, uint64_
                 now / 1e9);
 }
 
+/* How old a snapshot stamped `snap` is at `now`; 0 when it was taken after `now` was read (the poll thread
+ * stamps a cycle with the time it began, which may follow the reader's clock reading). */
+static uint64_t snap_age(uint64_t now, uint64_t snap)
+{
+    return now > snap ? now - snap : 0;
+}
+
 /* A device whose inputs are older than its age limit is lost now: its outputs get their safe values at once
  * (handed to its poll thread), its state and log line change; the scan's input latch agrees at its next start
  * (it judges the same snapshot by the same limit).  Only the OK -> LOST transition is made here. */
@@ -655,7 +662,7 @@ static void declare_lost_if_stale(io_device_t *d, uint64_t now)
 {
     pthread_mutex_lock(&d->m);
     const uint64_t snap = d->snap_ns;
-    const bool stale = snap != 0 && now - snap > (uint64_t)d->age_ms * 1000000u;
+    const bool stale = snap != 0 && snap_age(now, snap) > (uint64_t)d->age_ms * 1000000u;
     pthread_mutex_unlock(&d->m);
     if (!stale || atomic_load(&d->state) != IO_DEVICE_OK)
         return;
@@ -666,7 +673,7 @@ static void declare_lost_if_stale(io_device_t *d, uint64_t now)
         d->out_seq++;
     }
     pthread_mutex_unlock(&d->m);
-    set_state(d, IO_DEVICE_LOST, now, now - snap);
+    set_state(d, IO_DEVICE_LOST, now, snap_age(now, snap));
     if (changed) {
         io_device_t *L = d->leader;
         atomic_fetch_add(&L->line_seq, 1);
@@ -718,7 +725,7 @@ static void modbus_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw
 
         pthread_mutex_lock(&d->m);
         snap = d->snap_ns;
-        const bool fresh = snap != 0 && now - snap <= (uint64_t)d->age_ms * 1000000u;
+        const bool fresh = snap != 0 && snap_age(now, snap) <= (uint64_t)d->age_ms * 1000000u;
         if (fresh)
             memcpy(d->in_scan, d->in_snap, d->n_in * sizeof *d->in_scan);
         pthread_mutex_unlock(&d->m);
@@ -740,7 +747,7 @@ static void modbus_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw
         if (fresh)
             set_state(d, IO_DEVICE_OK, now, 0);
         else if (atomic_load(&d->state) == IO_DEVICE_OK)
-            set_state(d, IO_DEVICE_LOST, now, now - snap);
+            set_state(d, IO_DEVICE_LOST, now, snap_age(now, snap));
     }
 }
 
