@@ -180,8 +180,17 @@ def test_the_tool_in_the_spindle_survives_a_restart_of_the_plc(tmp_path):
         p.stop()
 
 
-MW_FIRST, MW_LAST = 1024, 1089          # the located %MW words of the map (%MW0..%MW65)
-MD_FIRST, MD_LAST = 2048, 2061          # the located %MD words (%MD0..%MD6, high word first)
+def _located(first: int, last: int) -> tuple[int, int]:
+    """The first and last holding register of the map's signals between first and last (a DINT takes two)."""
+    from plc.host.tags import load_map
+    regs = [a for sig in load_map(REPO / "modbus_map" / "map.toml").signals
+            if sig.table == "holding_register" and first <= sig.address <= last
+            for a in range(sig.address, sig.address + (2 if sig.type in ("DINT", "UDINT", "REAL") else 1))]
+    return min(regs), max(regs)
+
+
+MW_FIRST, MW_LAST = _located(1024, 2047)    # the located %MW words of the map
+MD_FIRST, MD_LAST = _located(2048, 4095)    # the located %MD words (high word first)
 
 
 def mw_words(tags: Tags) -> tuple[list[int], list[int]]:
