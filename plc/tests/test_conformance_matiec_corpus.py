@@ -12,7 +12,6 @@ from pathlib import Path
 import pytest
 
 from harness import compile_st, run_st
-from plc import driver, runtime
 
 import rt_harness as h  # noqa: E402
 
@@ -119,14 +118,7 @@ def test_programs_may_each_locate_a_variable_at_the_same_input():
 
 
 def test_the_same_input_in_two_programs_reads_the_same_value_on_the_runtime(tmp_path):
-    src = tmp_path / "st"
-    src.mkdir()
-    (src / "shared.st").write_text(SHARED_SRC)
-    result = driver.compile_sources([src])
-    assert not result.diags.has_errors() and result.c_text
-    c_file = src / "program.c"
-    c_file.write_text(result.c_text)
-    binary = runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE)
+    binary = h.st_runtime_binary(tmp_path / "st", {"shared.st": SHARED_SRC})
     with h.Runtime(binary, "--no-rt") as rt, h.Client(rt.port) as c:
         c.write_coil(400, True)                                  # %QX50.0 -> %IX50.0 (sim loop-back)
         h.wait_until(lambda: c.read_coils(1, 2) == [True, True], 5, "both programs to see %IX50.0 = TRUE")

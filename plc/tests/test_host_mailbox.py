@@ -64,10 +64,44 @@ def test_the_host_executes_the_put_and_get_moves_in_sequence_order(plc):
     assert all(b == a + 1 for a, b in zip(ids, ids[1:])), f"request ids not consecutive: {ids}"
     client, tags = plc.tags()
     with client:
-        s = tags.read("MbxAnswerId", "MbxRequestId", "MbxHostActive", "ToolInSpindle", "MbxOpcode")
-    assert s["MbxAnswerId"] == ids[-1] == s["MbxRequestId"]
+        s = tags.read("MbxAnswerId", "MbxRequestId", "MbxHostActive", "ToolInSpindle", "MbxOpcode", "MbxArgsId")
+    assert s["MbxAnswerId"] == ids[-1] == s["MbxRequestId"] == s["MbxArgsId"]
     assert s["MbxHostActive"] is False, "the host leaves MbxHostActive FALSE when it exits"
     assert s["ToolInSpindle"] == 4 and s["MbxOpcode"] == 0
+
+
+class FakeTags:
+    """The PLC's mailbox registers as a dict; writes recorded."""
+
+    def __init__(self, values: dict):
+        self.values, self.writes = dict(values), []
+
+    def get(self, name: str):
+        return self.values[name]
+
+    def write(self, **values) -> None:
+        self.writes.append(values)
+        self.values.update(values)
+
+
+def test_a_request_whose_arguments_are_still_the_last_ones_waits_for_the_next_read():
+    """The id (registers 10..13) and the arguments (%MD) are two reads: with MbxArgsId still the last request's id
+    the arguments are the last request's too (FEEDRATE's empty Z before a MOVEABS Z-5), so nothing is executed or
+    answered until a read shows both ids equal."""
+    from plc.host.mailbox import MOVEABS, RESULT_OK, Mailbox
+    stale = {"MbxRequestId": 8, "MbxOpcode": MOVEABS, "MbxText": 0, "MbxAxisMask": 4, "MbxValue": 0,
+             "MbxArgsId": 7, "MbxX": 0, "MbxY": 0, "MbxZ": 0, "MbxA": 0, "MbxB": 0, "MbxC": 0}
+    tags = FakeTags(stale)
+    said: list[str] = []
+    box = Mailbox(tags, said.append, answer="ok")
+    assert box.step(stale) is None and tags.writes == [] and said == []
+    fresh = dict(stale, MbxArgsId=8, MbxZ=-5000)
+    tags.values.update(fresh)
+    req = box.step(fresh)
+    assert req is not None and req.axes == {"Z": -5.0}
+    assert tags.writes == [{"MbxAnswerResult": RESULT_OK}, {"MbxAnswerId": 8}]
+    assert box.position == {"Z": -5.0} and any("MOVEABS Z-5" in line for line in said), said
+    assert box.step(fresh) is None, "served once per id"
 
 
 def test_without_the_mailbox_the_plc_answers_itself(plc):

@@ -180,8 +180,17 @@ def test_the_tool_in_the_spindle_survives_a_restart_of_the_plc(tmp_path):
         p.stop()
 
 
-MW_FIRST, MW_LAST = 1024, 1089          # the located %MW words of the map (%MW0..%MW65)
-MD_FIRST, MD_LAST = 2048, 2061          # the located %MD words (%MD0..%MD6, high word first)
+def _located(first: int, last: int) -> tuple[int, int]:
+    """The first and last holding register of the map's signals between first and last (a DINT takes two)."""
+    from plc.host.tags import load_map
+    regs = [a for sig in load_map(REPO / "modbus_map" / "map.toml").signals
+            if sig.table == "holding_register" and first <= sig.address <= last
+            for a in range(sig.address, sig.address + (2 if sig.type in ("DINT", "UDINT", "REAL") else 1))]
+    return min(regs), max(regs)
+
+
+MW_FIRST, MW_LAST = _located(1024, 2047)    # the located %MW words of the map
+MD_FIRST, MD_LAST = _located(2048, 4095)    # the located %MD words (high word first)
 
 
 def mw_words(tags: Tags) -> tuple[list[int], list[int]]:
@@ -209,11 +218,12 @@ def test_an_abort_at_the_handover_is_recovered_with_home_and_confirm(plc):
     client, tags = plc.tags()
     with client:
         snapshots = [mw_words(tags)]
-        # The test answers the mailbox itself (MbxHostActive) and leaves the MOVEABS of Put step 16 (spindle up,
-        # collet open) unanswered: the sequence waits there however slow the machine is.
+        # The test answers the mailbox itself (MbxHostActive; the first host runs with --no-mailbox so that it does
+        # not answer too) and leaves the MOVEABS of Put step 16 (spindle up, collet open) unanswered: the sequence
+        # waits there however slow the machine is.
         tags.write(MbxHostActive=True)
         first = subprocess.Popen([sys.executable, "-m", "plc.cli", "host", "--port", str(plc.port), "--timeout", "600",
-                                  "T5 M6"], cwd=REPO / "plc", stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  "--no-mailbox", "T5 M6"], cwd=REPO / "plc", stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                  text=True)
         try:
             deadline = time.monotonic() + 120
@@ -240,7 +250,7 @@ def test_an_abort_at_the_handover_is_recovered_with_home_and_confirm(plc):
             if first.poll() is None:
                 first.kill()
         assert first.returncode == 1, out_first
-        assert "timeout" not in out_first, out_first
+        assert "timeout:" not in out_first and "M6 aborted by" in out_first, out_first
         s = tags.read("FaultReason", "Recovery", "ToolInSpindle", "UncertainTool")
         assert s["FaultReason"] == -103 and s["Recovery"] == 3, s      # step 16: home, then confirm
         snapshots.append(mw_words(tags))

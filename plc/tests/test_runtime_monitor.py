@@ -15,7 +15,6 @@ from pathlib import Path
 import pytest
 
 import rt_harness as h
-from plc import driver, runtime
 from plc.hmi.monitor import Monitor, MonitorError
 
 MAIN = """\
@@ -84,14 +83,7 @@ TOKEN = "test-token-0123456789abcdef"
 
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:
-    src = tmp_path_factory.mktemp("mon")
-    (src / "Main.st").write_text(MAIN)
-    (src / "Config0.st").write_text(CONFIG)
-    result = driver.compile_sources([src])
-    assert not result.diags.has_errors() and result.c_text, "the ST test program must compile"
-    c_file = src / "program.c"
-    c_file.write_text(result.c_text)
-    return runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE)
+    return h.st_runtime_binary(tmp_path_factory.mktemp("mon"), {"Main.st": MAIN, "Config0.st": CONFIG})
 
 
 class Plc:

@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 
 import rt_harness as h  # noqa: E402
-from plc import driver, runtime  # noqa: E402
 
 MAIN = """\
 PROGRAM Main
@@ -54,14 +53,7 @@ END_CONFIGURATION
 
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:
-    src = tmp_path_factory.mktemp("st")
-    (src / "Main.st").write_text(MAIN)
-    (src / "Config0.st").write_text(CONFIG)
-    result = driver.compile_sources([src])
-    assert not result.diags.has_errors() and result.c_text, "the ST test program must compile"
-    c_file = src / "program.c"
-    c_file.write_text(result.c_text)
-    return runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE)
+    return h.st_runtime_binary(tmp_path_factory.mktemp("st"), {"Main.st": MAIN, "Config0.st": CONFIG})
 
 
 def test_compiled_st_runs_on_the_openplc_map_and_keeps_retain(binary, tmp_path):

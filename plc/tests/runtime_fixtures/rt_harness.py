@@ -62,6 +62,20 @@ def runtime_binary(program_c: Path = BASIC, **defines: object) -> Path:
     return build_runtime(program_c, CACHE, sanitize=SANITIZE)
 
 
+def st_runtime_binary(src: Path, files: dict[str, str]) -> Path:
+    """The runtime built around an ST program compiled by our compiler: `files` (name -> text) are written to
+    the directory `src`, which must compile without errors."""
+    from plc import driver
+    src.mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        (src / name).write_text(text)
+    result = driver.compile_sources([src])
+    assert not result.diags.has_errors() and result.c_text, "the ST test program must compile"
+    c_file = src / "program.c"
+    c_file.write_text(result.c_text)
+    return build_runtime(c_file, CACHE, sanitize=SANITIZE)
+
+
 def tool_binary(name: str) -> Path:
     """A test client of runtime_fixtures/NAME.c (mbload, mbfuzz, mbhostile), built once per source version
     (plain sockets, no sanitizer: it is the tester, not the tested)."""

@@ -2,7 +2,9 @@
 
 A sequence step that only the CNC can do (MOVEABS, MOVETOEDGE, FEEDRATE, SPINDLE, MESSAGE, DIALOG) is published by
 the PLC as a request: MbxRequestId (new for every request), MbxOpcode and the arguments (MbxAxisMask, MbxX..MbxC and
-MbxValue in thousandths, MbxText).  The PLC waits for these requests to be answered only while the host holds the
+MbxValue in thousandths, MbxText) and MbxArgsId, the id again in the arguments' block: the id and the arguments
+are two reads, so a request is taken only when both ids agree (else the arguments may be the last request's).
+The PLC waits for these requests to be answered only while the host holds the
 coil MbxHostActive TRUE; else it acknowledges them itself.  The host answers with MbxAnswerResult, then (in a
 later write) MbxAnswerId = the request's id, so the PLC never takes an id with the previous result.
 
@@ -23,7 +25,8 @@ OPCODE_NAMES = {MOVEABS: "MOVEABS", MOVETOEDGE: "MOVETOEDGE", FEEDRATE: "FEEDRAT
                 SPINDLE_CCW: "SPINDLE CCW", SPINDLE_STOP: "SPINDLE STOP", MESSAGE: "MESSAGE", DIALOG: "DIALOG"}
 RESULT_OK, RESULT_EDGE, RESULT_NO_EDGE, RESULT_CANCEL, RESULT_FAILED = 1, 2, 3, -1, -2
 AXES = ("X", "Y", "Z", "A", "B", "C")            # bit i of MbxAxisMask = AXES[i], argument register Mbx<axis>
-REQUEST = ("MbxRequestId", "MbxOpcode", "MbxText", "MbxAxisMask", "MbxValue") + tuple(f"Mbx{a}" for a in AXES)
+REQUEST = ("MbxRequestId", "MbxOpcode", "MbxText", "MbxAxisMask", "MbxValue", "MbxArgsId") \
+    + tuple(f"Mbx{a}" for a in AXES)
 MAILBOX = ("MbxHostActive", "MbxAnswerId", "MbxAnswerResult") + REQUEST
 
 
@@ -96,6 +99,8 @@ class Mailbox:
         rid, opcode = int(s.get("MbxRequestId", 0)), int(s.get("MbxOpcode", 0))
         if opcode == 0 or rid == 0 or rid == self._last_id:
             return None
+        if int(s.get("MbxArgsId", rid)) != rid:
+            return None             # the arguments read are still the last request's: the next poll has them
         req = Request.from_values(s)
         self._last_id = rid
         result = self.execute(req)

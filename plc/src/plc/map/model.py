@@ -326,21 +326,28 @@ def _load_section(data: dict, section: str, target: Any, lines: KeyLines, diags:
             setattr(target, key, float(value) if want == (int, float) else value)
 
 
-def _load_signal(index: int, table: dict, lines: KeyLines, diags: Diagnostics) -> Signal | None:
+def _check_entry(kind: str, index: int, table: dict, known: dict, required, lines: KeyLines,
+                 diags: Diagnostics) -> bool:
+    """The keys of one [[kind]] table: none unknown, each of its type, the required ones there."""
     ok = True
     for key, value in table.items():
-        want = _SIGNAL_KEYS.get(key)
+        want = known.get(key)
         if want is None:
-            diags.error(lines.pos("signal", index, key), f"signal: unknown key '{key}'",
-                        "known: " + ", ".join(sorted(_SIGNAL_KEYS)))
+            diags.error(lines.pos(kind, index, key), f"{kind}: unknown key '{key}'",
+                        "known: " + ", ".join(sorted(known)))
             ok = False
         elif not _type_ok(value, want):
-            diags.error(lines.pos("signal", index, key), f"signal: {key} must be {_type_name(want)}")
+            diags.error(lines.pos(kind, index, key), f"{kind}: {key} must be {_type_name(want)}")
             ok = False
-    for key in _REQUIRED:
+    for key in required:
         if key not in table:
-            diags.error(lines.pos("signal", index), f"signal: missing key '{key}'")
+            diags.error(lines.pos(kind, index), f"{kind}: missing key '{key}'")
             ok = False
+    return ok
+
+
+def _load_signal(index: int, table: dict, lines: KeyLines, diags: Diagnostics) -> Signal | None:
+    ok = _check_entry("signal", index, table, _SIGNAL_KEYS, _REQUIRED, lines, diags)
     states = table.get("states", [])
     if isinstance(states, list) and not all(isinstance(s, str) for s in states):
         diags.error(lines.pos("signal", index, "states"), "signal: states must be a list of names")
@@ -374,21 +381,7 @@ def _load_reasons(rmap: RegisterMap, path: Path, diags: Diagnostics) -> None:
             diags.error(lines.pos("reasons", 0, key), f"[reasons] {key} = {value!r} is not understood",
                         "known: st_type = \"INT\" | \"DINT\", constant_prefix = \"...\"")
     for i, table in enumerate(data.get("reason", [])):
-        ok = True
-        for key, value in table.items():
-            want = _REASON_KEYS.get(key)
-            if want is None:
-                diags.error(lines.pos("reason", i, key), f"reason: unknown key '{key}'",
-                            "known: " + ", ".join(sorted(_REASON_KEYS)))
-                ok = False
-            elif not _type_ok(value, want):
-                diags.error(lines.pos("reason", i, key), f"reason: {key} must be {_type_name(want)}")
-                ok = False
-        for key in ("code", "name", "severity", "text"):
-            if key not in table:
-                diags.error(lines.pos("reason", i), f"reason: missing key '{key}'")
-                ok = False
-        if ok:
+        if _check_entry("reason", i, table, _REASON_KEYS, ("code", "name", "severity", "text"), lines, diags):
             rmap.reasons.append(Reason(index=i, code=table["code"], name=table["name"],
                                        severity=table["severity"], text=table["text"],
                                        source=table.get("source", ""), rotary_error=table.get("rotary_error", ""),

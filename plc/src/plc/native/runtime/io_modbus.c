@@ -648,25 +648,16 @@ static void set_state(io_device_t *d, io_device_state_t s, uint64_t now, uint64_
                 now / 1e9);
 }
 
-/* A device whose inputs are older than its age limit is lost now: its outputs get their safe values at once
- * (handed to its poll thread), its state and log line change; the scan's input latch agrees at its next start
- * (it judges the same snapshot by the same limit).  Only the OK -> LOST transition is made here. */
-static void declare_lost_if_stale(io_device_t *d, uint64_t now)
+/* Hands `out` (n_out values) to the device's line: its poll thread writes them at once if they changed. */
+static void hand_over(io_device_t *d, const uint16_t *out)
 {
     pthread_mutex_lock(&d->m);
-    const uint64_t snap = d->snap_ns;
-    const bool stale = snap != 0 && now - snap > (uint64_t)d->age_ms * 1000000u;
-    pthread_mutex_unlock(&d->m);
-    if (!stale || atomic_load(&d->state) != IO_DEVICE_OK)
-        return;
-    pthread_mutex_lock(&d->m);
-    const bool changed = memcmp(d->out_next, d->safe, d->n_out * sizeof *d->safe) != 0;
+    const bool changed = memcmp(d->out_next, out, d->n_out * sizeof *out) != 0;
     if (changed) {
-        memcpy(d->out_next, d->safe, d->n_out * sizeof *d->safe);
+        memcpy(d->out_next, out, d->n_out * sizeof *out);
         d->out_seq++;
     }
     pthread_mutex_unlock(&d->m);
-    set_state(d, IO_DEVICE_LOST, now, now - snap);
     if (changed) {
         io_device_t *L = d->leader;
         atomic_fetch_add(&L->line_seq, 1);
@@ -674,6 +665,25 @@ static void declare_lost_if_stale(io_device_t *d, uint64_t now)
         pthread_cond_signal(&L->cv);
         pthread_mutex_unlock(&L->m);
     }
+}
+
+/* How old a snapshot stamped `snap` is at `now`; 0 when it was taken after `now` was read (the poll thread
+ * stamps a cycle with the time it began, which may follow the reader's clock reading). */
+static uint64_t snap_age(uint64_t now, uint64_t snap)
+{
+    return now > snap ? now - snap : 0;
+}
+
+/* A device whose inputs are older than its age limit is lost now: its outputs get their safe values at once
+ * (handed to its poll thread), its state and log line change; the scan's input latch agrees at its next start
+ * (it judges the same snapshot by the same limit).  Only the OK -> LOST transition is made here. */
+static void declare_lost_if_stale(io_device_t *d, uint64_t now, uint64_t snap)
+{
+    const bool stale = snap != 0 && snap_age(now, snap) > (uint64_t)d->age_ms * 1000000u;
+    if (!stale || atomic_load(&d->state) != IO_DEVICE_OK)
+        return;
+    hand_over(d, d->safe);
+    set_state(d, IO_DEVICE_LOST, now, snap_age(now, snap));
 }
 
 static void *loss_watch(void *arg)
@@ -686,10 +696,10 @@ static void *loss_watch(void *arg)
         for (unsigned i = 0; i < io->n; i++) {
             io_device_t *d = &io->dev[i];
             const uint64_t age = (uint64_t)d->age_ms * 1000000u;
-            declare_lost_if_stale(d, now);
             pthread_mutex_lock(&d->m);
             const uint64_t snap = d->snap_ns;
             pthread_mutex_unlock(&d->m);
+            declare_lost_if_stale(d, now, snap);
             /* next look: when this device's inputs pass the limit, or one limit from now if they already did */
             const uint64_t due = (snap != 0 && snap + age > now) ? snap + age + 1 : now + age;
             if (due < next)
@@ -718,7 +728,7 @@ static void modbus_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw
 
         pthread_mutex_lock(&d->m);
         snap = d->snap_ns;
-        const bool fresh = snap != 0 && now - snap <= (uint64_t)d->age_ms * 1000000u;
+        const bool fresh = snap != 0 && snap_age(now, snap) <= (uint64_t)d->age_ms * 1000000u;
         if (fresh)
             memcpy(d->in_scan, d->in_snap, d->n_in * sizeof *d->in_scan);
         pthread_mutex_unlock(&d->m);
@@ -740,7 +750,7 @@ static void modbus_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw
         if (fresh)
             set_state(d, IO_DEVICE_OK, now, 0);
         else if (atomic_load(&d->state) == IO_DEVICE_OK)
-            set_state(d, IO_DEVICE_LOST, now, now - snap);
+            set_state(d, IO_DEVICE_LOST, now, snap_age(now, snap));
     }
 }
 
@@ -766,20 +776,7 @@ static void modbus_write_outputs(void *state, const plc_bool_t qx[MAP_BITS], con
                     out[r->at + j] = rules[r->kind].bits ? (qx[r->image + j] ? 1 : 0) : qw[r->image + j];
             }
         }
-        pthread_mutex_lock(&d->m);
-        const bool changed = memcmp(d->out_next, out, d->n_out * sizeof *out) != 0;
-        if (changed) {
-            memcpy(d->out_next, out, d->n_out * sizeof *out);
-            d->out_seq++;
-        }
-        pthread_mutex_unlock(&d->m);
-        if (changed) {              /* wake the line's poll thread: it writes them at once */
-            io_device_t *L = d->leader;
-            atomic_fetch_add(&L->line_seq, 1);
-            pthread_mutex_lock(&L->m);
-            pthread_cond_signal(&L->cv);
-            pthread_mutex_unlock(&L->m);
-        }
+        hand_over(d, out);
     }
 }
 
