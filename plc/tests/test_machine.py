@@ -122,3 +122,22 @@ def test_a_bad_rack_is_reported(tmp_path, change, message):
     proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
     assert proc.returncode == 1 and message in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_a_project_copy_inside_the_repository_is_its_own_project(tmp_path):
+    """A copy of the project without scan tests under another project's tree (the LinuxCNC e2e switches one to the
+    rack example under build/) is the root for `plc` commands run in it; before, the search for st_src/ with
+    iec_tests/ went up to the repository and `plc machine use` rewrote the repository's own machine."""
+    from plc.testrunner import project_root
+    outer = tmp_path / "repo"
+    for rel in ("st_src", "iec_tests", "modbus_map", "configs"):
+        (outer / rel).mkdir(parents=True)
+    inner = outer / "build" / "run" / "rack-project"
+    for rel in ("st_src", "modbus_map", "configs"):
+        (inner / rel).mkdir(parents=True)
+    assert project_root(inner / "st_src") == inner
+    assert project_root(inner) == inner
+    assert project_root(outer / "build" / "run") == outer
+    bare = tmp_path / "sources-only"
+    (bare / "st_src").mkdir(parents=True)
+    assert project_root(bare) is None, "st_src/ alone is not a project"

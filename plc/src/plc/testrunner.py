@@ -44,10 +44,16 @@ class TestResult:
         return self.status == "PASS"
 
 
+PROJECT_MARKS = ("iec_tests", "modbus_map", "configs/machine.toml")
+
+
 def project_root(start: Path | None = None) -> Path | None:
+    """The nearest directory at or above `start` (default: here) holding st_src/ and one of PROJECT_MARKS: a
+    project copy without scan tests (e.g. one switched to an example machine under build/) is its own project,
+    not part of the repository around it."""
     p = (start or Path.cwd()).resolve()
     for q in (p, *p.parents):
-        if (q / "st_src").is_dir() and (q / "iec_tests").is_dir():
+        if (q / "st_src").is_dir() and any((q / mark).exists() for mark in PROJECT_MARKS):
             return q
     return None
 
@@ -190,6 +196,8 @@ def write_junit(path: str, results: list[TestResult], total_s: float) -> None:
 
 def cmd_test(args) -> int:
     root = project_root()
+    if not args.paths and root is not None and not (root / "iec_tests").is_dir():
+        raise UserError(f"no test paths given and the project at {root} has no iec_tests/")
     paths = args.paths or ([str(root / "iec_tests")] if root else [])
     if not paths:
         raise UserError("no test paths given and no project (st_src/ and iec_tests/) found from here")
