@@ -4,7 +4,7 @@
  * Start-up: check the program against the ABI, init() it, bind its located
  * variables to the image, open the I/O layer, restore retained data, publish
  * the first image, start the Modbus server, then run the scan loop on this
- * thread (SCHED_FIFO when permitted).
+ * thread (pinned to one CPU with --cpu, SCHED_FIFO when permitted).
  *
  * SIGINT/SIGTERM are blocked in every thread and polled by the scan loop; on
  * either the program stops, outputs go safe (all coils cleared in the image,
