@@ -90,6 +90,7 @@ registers = ["1024-1027"]
 [scan]
 realtime = false
 rt_priority = 20
+cpu = 1
 status_interval_s = 2.5
 watchdog_ms = 250
 """
@@ -103,7 +104,7 @@ def test_a_full_config_is_read(tmp_path):
         bind="127.0.0.1", port=5021, max_clients=4, frame_timeout_ms=500, read_only=True, allow=["127.0.0.1/32", "10.1.2.0/24"],
         writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none",
         retain_file=tmp_path / "state" / "plc.retain", retain_interval_ms=50, retain_registers=["1024-1027"],
-        realtime=False, rt_priority=20, status_interval_s=2.5, watchdog_ms=250)
+        realtime=False, rt_priority=20, cpu=1, status_interval_s=2.5, watchdog_ms=250)
     argv = runtime.runtime_argv(Path("/x/plc-runtime"), cfg)
     assert argv[0] == "/x/plc-runtime"
     pairs = dict(zip(argv[1::2], argv[2::2]))
@@ -114,6 +115,7 @@ def test_a_full_config_is_read(tmp_path):
     assert pairs["--retain"] == str(tmp_path / "state" / "plc.retain")
     assert pairs["--watchdog"] == "250" and pairs["--status-interval"] == "2.5"
     assert "--no-rt" in argv
+    assert argv[argv.index("--cpu") + 1] == "1"
 
 
 def test_defaults_and_empty_writable_lists():
@@ -124,6 +126,7 @@ def test_defaults_and_empty_writable_lists():
     assert "--read-only" not in argv and argv[argv.index("--frame-timeout") + 1] == "2000"
     assert argv[argv.index("--retain") + 1] == str(Path("var") / "plc.retain")
     assert argv[argv.index("--bind") + 1] == "127.0.0.1" and argv[argv.index("--port") + 1] == "5020"
+    assert "--cpu" not in argv                                    # the scan thread is not pinned by default
 
 
 @pytest.mark.parametrize("text, message", [
@@ -149,6 +152,11 @@ def test_defaults_and_empty_writable_lists():
     ("[retain]\nregisters = [\"8192\"]\n", "[retain] registers: range '8192' is outside 0-8191"),
     ("[scan]\nrealtime = \"yes\"\n", "[scan] realtime: expected true or false"),
     ("[scan]\nrt_priority = 100\n", "[scan] rt_priority: expected an integer 1..99"),
+    ("[scan]\ncpu = -1\n", "[scan] cpu: expected an integer 0..1023, got -1"),
+    ("[scan]\ncpu = 1024\n", "[scan] cpu: expected an integer 0..1023, got 1024"),
+    ("[scan]\ncpu = \"1\"\n", "[scan] cpu: expected an integer 0..1023, got '1'"),
+    ("[scan]\ncpu = true\n", "[scan] cpu: expected an integer 0..1023, got True"),
+    ("[scan]\ncpu = 1.0\n", "[scan] cpu: expected an integer 0..1023, got 1.0"),
     ("[scan]\nstatus_interval_s = 0\n", "[scan] status_interval_s: expected a number of seconds >= 0.1"),
     ("[scan]\nwatchdog_ms = 1.5\n", "[scan] watchdog_ms: expected an integer 0..3600000"),
 ])
@@ -158,6 +166,16 @@ def test_bad_configs_are_rejected_with_the_place_and_the_reason(tmp_path, text, 
     with pytest.raises(runtime.ConfigError) as e:
         runtime.load_config(cfg_file)
     assert str(e.value).startswith(str(cfg_file) + ": ") and message in str(e.value)
+
+
+def test_the_shipped_config_pins_nothing_and_its_cpu_example_is_valid(tmp_path):
+    shipped = PLC_ROOT.parent / "configs" / "runtime.toml"
+    assert runtime.load_config(shipped).cpu is None
+    text = shipped.read_text()
+    assert "\n# [scan]\n# cpu = 1 " in text
+    example = tmp_path / "runtime.toml"
+    example.write_text(text.replace("\n# [scan]\n# cpu = 1 ", "\n[scan]\ncpu = 1 "))
+    assert runtime.load_config(example).cpu == 1
 
 
 def test_a_missing_config_file(tmp_path):

@@ -99,6 +99,49 @@ def test_realtime_scheduling_is_used_or_reported_once(binary):
     assert len(server) == 1, err
 
 
+def cpus_allowed(pid: int, tid: int) -> set[int]:
+    """The CPUs thread `tid` of process `pid` may run on (Cpus_allowed_list of /proc)."""
+    text = Path(f"/proc/{pid}/task/{tid}/status").read_text()
+    listed = re.search(r"^Cpus_allowed_list:\s*(\S+)", text, re.M).group(1)
+    out: set[int] = set()
+    for part in listed.split(","):
+        lo, _, hi = part.partition("-")
+        out |= set(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def test_cpu_pins_the_scan_thread_only_and_scans_go_on(binary):
+    cpu = min(os.sched_getaffinity(0))                   # CPU 0 unless this test is kept off it
+    with h.Runtime(binary, "--no-rt", "--cpu", str(cpu)) as rt, h.Client(rt.port) as c:
+        first = h.read_diag(c)["scans"]
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= first + 10, 5, "10 more scans")
+        assert f"scan thread pinned to CPU {cpu}" in rt.log, rt.log
+        pid = rt.proc.pid
+        assert cpus_allowed(pid, pid) == {cpu}           # the scan runs on the main thread
+        others = [int(t) for t in os.listdir(f"/proc/{pid}/task") if int(t) != pid]
+        assert others, "the runtime has no other threads?"
+        for tid in others:                               # Modbus server, log, retain, watchdog: not pinned
+            assert cpus_allowed(pid, tid) == os.sched_getaffinity(0), tid
+
+
+def test_without_cpu_nothing_is_pinned(binary):
+    rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--status", "off", "--duration", "0.2")
+    assert rc == 0 and "pinned" not in err, err
+
+
+@pytest.mark.parametrize("value, message", [
+    ("999", "--cpu: CPU 999 is not online (online CPUs: 0"),
+    ("-1", "--cpu: '-1' is not a CPU number"),
+    ("one", "--cpu: 'one' is not a CPU number"),
+    ("99999", "--cpu: '99999' is not a CPU number"),
+])
+def test_a_cpu_that_is_not_online_is_a_usage_error(binary, value, message):
+    if value == "999" and os.cpu_count() and os.cpu_count() > 999:
+        pytest.skip("this machine has a CPU 999")
+    rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--cpu", value, "--duration", "5")
+    assert rc == 2 and message in err and "running" not in err, err
+
+
 def test_duration_ends_with_a_summary_line(binary):
     rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--status", "off", "--duration", "0.5")
     assert rc == 0, err

@@ -38,6 +38,7 @@ Configuration file (every key optional; paths relative to the file's directory):
     [scan]
     realtime = true                 # ask for SCHED_FIFO
     rt_priority = 50
+    # cpu = 1                       # pin the scan thread (only it) to this CPU (default: not pinned)
     status_interval_s = 10          # status log line period when not on a terminal
     watchdog_ms = 1000              # longest run() call before outputs are forced safe (0 = off)
 """
@@ -77,6 +78,7 @@ SANITIZE = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefine
             "-fno-sanitize-recover=undefined"]
 
 IO_LAYERS = ("sim", "none", "modbus")
+MAX_CPU = 1023              # CPU_SETSIZE - 1 of glibc: the highest CPU number --cpu accepts
 
 APT_HINT = "install the Debian packages gcc, make, pkg-config and libmodbus-dev"
 
@@ -195,6 +197,7 @@ class RunConfig:
     retain_registers: list[str] = dataclasses.field(default_factory=list)
     realtime: bool = True
     rt_priority: int = 50
+    cpu: int | None = None                           # None: the scan thread is not pinned
     status_interval_s: float = 10.0
     watchdog_ms: int = 1000
     monitor: bool = True
@@ -209,7 +212,7 @@ _KEYS = {
                "writable_registers"},
     "io": {"layer", "device"},
     "retain": {"file", "interval_ms", "registers"},
-    "scan": {"realtime", "rt_priority", "status_interval_s", "watchdog_ms"},
+    "scan": {"realtime", "rt_priority", "cpu", "status_interval_s", "watchdog_ms"},
     "monitor": {"enabled", "socket", "token_file", "audit_file"},
 }
 
@@ -347,6 +350,8 @@ def load_config(path: Path) -> RunConfig:
         cfg.realtime = _check_bool(where("scan", "realtime"), scan["realtime"])
     if "rt_priority" in scan:
         cfg.rt_priority = _check_int(where("scan", "rt_priority"), scan["rt_priority"], 1, 99)
+    if "cpu" in scan:       # the machine that runs it may not be this one: the runtime checks it is online
+        cfg.cpu = _check_int(where("scan", "cpu"), scan["cpu"], 0, MAX_CPU)
     if "status_interval_s" in scan:
         value = scan["status_interval_s"]
         if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
@@ -407,6 +412,8 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
         argv += ["--rt-priority", str(cfg.rt_priority)]
     else:
         argv.append("--no-rt")
+    if cfg.cpu is not None:
+        argv += ["--cpu", str(cfg.cpu)]
     if cfg.read_only:
         argv.append("--read-only")
     if cfg.io == "modbus":

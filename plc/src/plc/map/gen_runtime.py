@@ -72,4 +72,8 @@ def runtime_toml(rmap: RegisterMap) -> str:
         "# the retained signals (%MW/%MD), saved atomically with the RETAIN variables",
         f"registers = {_list(retained_registers(rmap))}",
         "",
+        "# [scan]",
+        "# cpu = 1         # pin the scan thread (only it) to CPU 1, kept free of other work (isolcpus=, systemd",
+        "#                 # CPUAffinity=, taskset); default: not pinned",
+        "",
     ])

@@ -4,7 +4,7 @@
  * Start-up: check the program against the ABI, init() it, bind its located
  * variables to the image, open the I/O layer, restore retained data, publish
  * the first image, start the Modbus server, then run the scan loop on this
- * thread (SCHED_FIFO when permitted).
+ * thread (pinned to one CPU with --cpu, SCHED_FIFO when permitted).
  *
  * SIGINT/SIGTERM are blocked in every thread and polled by the scan loop; on
  * either the program stops, outputs go safe (all coils cleared in the image,
@@ -16,10 +16,12 @@
 #include <errno.h>
 #include <getopt.h>
 #include <inttypes.h>
+#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "runtime.h"
 #include "monitor.h"
@@ -60,6 +62,8 @@ static void usage(FILE *f)
 "  --no-rt                  do not ask for SCHED_FIFO\n"
 "  --rt-priority N          SCHED_FIFO priority of the scan thread (default %d;\n"
 "                           the Modbus server thread runs 10 levels below it)\n"
+"  --cpu N                  pin the scan thread (only it) to CPU N, an online CPU\n"
+"                           (default: not pinned; keep other work off N, e.g. isolcpus=)\n"
 "  --status auto|tty|log|off  live status line (auto: on a terminal, else log lines)\n"
 "  --status-interval S      seconds between status log lines when not on a terminal (default 10)\n"
 "  --duration S             stop after S seconds (benchmarks; default: run until SIGINT/SIGTERM)\n"
@@ -160,8 +164,35 @@ static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char
     return 0;
 }
 
+/*
+ * --cpu N: N must be an online CPU of this machine (below the count of online
+ * CPUs; one taken offline later makes the pinning fail, logged at run time).
+ * The process's own affinity
+ * mask is not the bound: a thread may be pinned outside it (a bench or a
+ * systemd CPUAffinity= keeps everything else off N and gives N to the scan).
+ */
+static int parse_cpu(const char *text, int *out)
+{
+    long online = sysconf(_SC_NPROCESSORS_ONLN);
+    char range[32];
+    long v;
+
+    if (!parse_long(text, 0, CPU_SETSIZE - 1, &v))
+        return usage_error("--cpu: '%s' is not a CPU number", text);
+    if (online < 1)
+        online = 1;
+    if (v >= online) {
+        snprintf(range, sizeof range, "%s%ld", online > 1 ? "0.." : "", online - 1);
+        fprintf(stderr, RT_NAME ": error: --cpu: CPU %ld is not online (online CPUs: %s)\n(try --help)\n", v,
+                range);
+        return 2;
+    }
+    *out = (int)v;
+    return 0;
+}
+
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_IO_DEVICE, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
-       OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_STATUS,
+       OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_CPU, OPT_STATUS,
        OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP,
        OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS };
 
@@ -183,6 +214,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "writable-registers", required_argument, NULL, OPT_WRITABLE_REGISTERS },
         { "no-rt", no_argument, NULL, OPT_NO_RT },
         { "rt-priority", required_argument, NULL, OPT_RT_PRIORITY },
+        { "cpu", required_argument, NULL, OPT_CPU },
         { "status", required_argument, NULL, OPT_STATUS },
         { "status-interval", required_argument, NULL, OPT_STATUS_INTERVAL },
         { "duration", required_argument, NULL, OPT_DURATION },
@@ -209,6 +241,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     o->frame_timeout_ms = DEFAULT_FRAME_TIMEOUT_MS;
     o->realtime = true;
     o->rt_priority = DEFAULT_RT_PRIORITY;
+    o->cpu = -1;
     o->status = STATUS_AUTO;
     o->status_interval_s = 10;
     o->watchdog_ms = DEFAULT_WATCHDOG_MS;
@@ -293,6 +326,10 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             if (!parse_long(optarg, 1, 99, &v))
                 return usage_error("--rt-priority: '%s' is not a number 1..99", optarg);
             o->rt_priority = (int)v;
+            break;
+        case OPT_CPU:
+            if ((rc = parse_cpu(optarg, &o->cpu)) != 0)
+                return rc;
             break;
         case OPT_STATUS:
             if (strcmp(optarg, "auto") == 0) o->status = STATUS_AUTO;

@@ -237,6 +237,7 @@ typedef struct rt_options {
     addr_set_t writable_registers;
     bool realtime;
     int rt_priority;
+    int cpu;                       /* the scan thread's CPU (--cpu; -1: not pinned) */
     status_mode_t status;
     double status_interval_s;      /* log-line status period when not on a TTY */
     double duration_s;             /* stop after this long (0: run until signalled) */
@@ -347,7 +348,7 @@ uint16_t image_prog_holding(const prog_image_t *p, unsigned addr);
 void image_prog_set_holding(prog_image_t *p, unsigned addr, uint16_t v);
 
 /* scan.c */
-void scan_setup_realtime(runtime_t *rt);
+void scan_setup_realtime(runtime_t *rt);            /* --cpu, then SCHED_FIFO: on the scan thread */
 int scan_run(runtime_t *rt);
 uint64_t now_ns(void);
 

@@ -96,11 +96,31 @@ uint64_t hist_percentile(const histogram_t *h, double p)
 
 /* ------------------------------------------------------------ real time */
 
+/* --cpu: this thread only.  The other threads were started before and keep the
+ * process's CPUs.  A failure is reported and the scan runs unpinned. */
+static void pin_scan_thread(runtime_t *rt)
+{
+    cpu_set_t set;
+    int rc;
+
+    if (rt->opt.cpu < 0)
+        return;
+    CPU_ZERO(&set);
+    CPU_SET(rt->opt.cpu, &set);
+    rc = pthread_setaffinity_np(pthread_self(), sizeof set, &set);
+    if (rc != 0)
+        log_msg(rt->log, LOG_WARN, "cannot pin the scan thread to CPU %d (%s); it runs on any CPU the "
+                "process may use", rt->opt.cpu, strerror(rc));
+    else
+        log_msg(rt->log, LOG_INFO, "scan thread pinned to CPU %d", rt->opt.cpu);
+}
+
 void scan_setup_realtime(runtime_t *rt)
 {
     struct sched_param sp;
     int rc;
 
+    pin_scan_thread(rt);
     if (!rt->opt.realtime) {
         log_msg(rt->log, LOG_INFO, "real-time scheduling off (--no-rt)");
         return;
