@@ -181,11 +181,11 @@ def test_the_tool_in_the_spindle_survives_a_restart_of_the_plc(tmp_path):
 
 
 def _located(first: int, last: int) -> tuple[int, int]:
-    """The first and last holding register of the map's signals between first and last (a DINT takes two)."""
+    """The first and last holding register of the map's signals between first and last (Signal.words each)."""
     from plc.host.tags import load_map
     regs = [a for sig in load_map(REPO / "modbus_map" / "map.toml").signals
             if sig.table == "holding_register" and first <= sig.address <= last
-            for a in range(sig.address, sig.address + (2 if sig.type in ("DINT", "UDINT", "REAL") else 1))]
+            for a in range(sig.address, sig.address + sig.words)]
     return min(regs), max(regs)
 
 
