@@ -91,6 +91,7 @@ registers = ["1024-1027"]
 realtime = false
 rt_priority = 20
 cpu = 1
+cpu_latency_us = 0
 status_interval_s = 2.5
 watchdog_ms = 250
 """
@@ -104,7 +105,7 @@ def test_a_full_config_is_read(tmp_path):
         bind="127.0.0.1", port=5021, max_clients=4, frame_timeout_ms=500, read_only=True, allow=["127.0.0.1/32", "10.1.2.0/24"],
         writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none",
         retain_file=tmp_path / "state" / "plc.retain", retain_interval_ms=50, retain_registers=["1024-1027"],
-        realtime=False, rt_priority=20, cpu=1, status_interval_s=2.5, watchdog_ms=250)
+        realtime=False, rt_priority=20, cpu=1, cpu_latency_us=0, status_interval_s=2.5, watchdog_ms=250)
     argv = runtime.runtime_argv(Path("/x/plc-runtime"), cfg)
     assert argv[0] == "/x/plc-runtime"
     pairs = dict(zip(argv[1::2], argv[2::2]))
@@ -116,6 +117,7 @@ def test_a_full_config_is_read(tmp_path):
     assert pairs["--watchdog"] == "250" and pairs["--status-interval"] == "2.5"
     assert "--no-rt" in argv
     assert argv[argv.index("--cpu") + 1] == "1"
+    assert argv[argv.index("--cpu-latency") + 1] == "0"
 
 
 def test_defaults_and_empty_writable_lists():
@@ -127,6 +129,7 @@ def test_defaults_and_empty_writable_lists():
     assert argv[argv.index("--retain") + 1] == str(Path("var") / "plc.retain")
     assert argv[argv.index("--bind") + 1] == "127.0.0.1" and argv[argv.index("--port") + 1] == "5020"
     assert "--cpu" not in argv                                    # the scan thread is not pinned by default
+    assert "--cpu-latency" not in argv                            # nor any PM QoS request
 
 
 @pytest.mark.parametrize("text, message", [
@@ -157,6 +160,8 @@ def test_defaults_and_empty_writable_lists():
     ("[scan]\ncpu = \"1\"\n", "[scan] cpu: expected an integer 0..1023, got '1'"),
     ("[scan]\ncpu = true\n", "[scan] cpu: expected an integer 0..1023, got True"),
     ("[scan]\ncpu = 1.0\n", "[scan] cpu: expected an integer 0..1023, got 1.0"),
+    ("[scan]\ncpu_latency_us = -1\n", "[scan] cpu_latency_us: expected an integer 0..2000000000, got -1"),
+    ("[scan]\ncpu_latency_us = \"0\"\n", "[scan] cpu_latency_us: expected an integer 0..2000000000, got '0'"),
     ("[scan]\nstatus_interval_s = 0\n", "[scan] status_interval_s: expected a number of seconds >= 0.1"),
     ("[scan]\nwatchdog_ms = 1.5\n", "[scan] watchdog_ms: expected an integer 0..3600000"),
 ])
@@ -176,6 +181,11 @@ def test_the_shipped_config_pins_nothing_and_its_cpu_example_is_valid(tmp_path):
     example = tmp_path / "runtime.toml"
     example.write_text(text.replace("\n# [scan]\n# cpu = 1 ", "\n[scan]\ncpu = 1 "))
     assert runtime.load_config(example).cpu == 1
+    assert runtime.load_config(shipped).cpu_latency_us is None
+    assert "\n# cpu_latency_us = 0 " in text
+    example.write_text(text.replace("\n# [scan]\n", "\n[scan]\n").replace("\n# cpu_latency_us = 0 ",
+                                                                          "\ncpu_latency_us = 0 "))
+    assert runtime.load_config(example).cpu_latency_us == 0
 
 
 def test_a_missing_config_file(tmp_path):

@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import signal
 import socket
+import struct
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -140,6 +143,62 @@ def test_a_cpu_that_is_not_online_is_a_usage_error(binary, value, message):
         pytest.skip("this machine has a CPU 999")
     rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--cpu", value, "--duration", "5")
     assert rc == 2 and message in err and "running" not in err, err
+
+
+def cpu_latency_request() -> int | None:
+    """The kernel's aggregate PM QoS CPU latency request (us), None when it cannot be read here."""
+    try:
+        with open("/dev/cpu_dma_latency", "rb") as f:
+            return struct.unpack("i", f.read(4))[0]
+    except OSError:
+        return None
+
+
+def test_cpu_latency_is_requested_while_running_and_withdrawn_at_the_end(binary):
+    before = cpu_latency_request()
+    if before is None or not os.access("/dev/cpu_dma_latency", os.W_OK):
+        pytest.skip("/dev/cpu_dma_latency cannot be read and written here (needs root or a udev rule)")
+    if before <= 7:
+        pytest.skip(f"another program already holds a CPU latency request of {before} us")
+    with h.Runtime(binary, "--no-rt", "--cpu-latency", "7") as rt, h.Client(rt.port) as c:
+        first = h.read_diag(c)["scans"]
+        h.wait_until(lambda: h.read_diag(c)["scans"] >= first + 10, 5, "10 more scans")
+        assert "CPU idle exit latency limited to 7 us while running (PM QoS)" in rt.log, rt.log
+        assert cpu_latency_request() == 7
+    h.wait_until(lambda: cpu_latency_request() == before, 5, f"the request back at {before} us")
+
+
+def test_a_cpu_latency_that_cannot_be_requested_is_a_warning_and_scans_go_on(binary):
+    # As a user without access to /dev/cpu_dma_latency: the runtime warns once and runs
+    if os.geteuid() != 0:
+        rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--status", "off", "--cpu-latency", "0",
+                             "--duration", "0.3")
+        assert rc == 0 and "cannot limit the CPUs' idle exit latency to 0 us" in err, err
+        return
+    setpriv = shutil.which("setpriv")
+    if not setpriv:
+        pytest.skip("setpriv (util-linux) is needed to run the runtime as an unprivileged user")
+    where = Path(tempfile.mkdtemp(prefix="plc-nobody-", dir="/tmp"))    # not under pytest's 0700 folders
+    try:
+        where.chmod(0o755)
+        copy = where / "plc-runtime"
+        shutil.copy(binary, copy)
+        copy.chmod(0o755)
+        proc = subprocess.run([setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", str(copy), "--no-rt",
+                               "--port", "0", "--status", "off", "--cpu-latency", "0", "--duration", "0.3"],
+                              capture_output=True, text=True, timeout=60 * h.SLOW, cwd=where,
+                              env={**os.environ, **h.SANITIZER_ENV}, stdin=subprocess.DEVNULL)
+    finally:
+        shutil.rmtree(where, ignore_errors=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "cannot limit the CPUs' idle exit latency to 0 us (/dev/cpu_dma_latency: Permission denied)" \
+        in proc.stderr and "run time of 0.3 s reached" in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("value", ["-1", "fast", "2000000001"])
+def test_a_bad_cpu_latency_is_a_usage_error(binary, value):
+    rc, err = run_to_end(binary, "--no-rt", "--port", "0", "--cpu-latency", value, "--duration", "5")
+    assert rc == 2 and f"--cpu-latency: '{value}' is not a number of microseconds" in err and "running" not in err, err
 
 
 def test_duration_ends_with_a_summary_line(binary):

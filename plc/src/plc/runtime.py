@@ -198,6 +198,7 @@ class RunConfig:
     realtime: bool = True
     rt_priority: int = 50
     cpu: int | None = None                           # None: the scan thread is not pinned
+    cpu_latency_us: int | None = None                # None: the kernel's idle states (no PM QoS request)
     status_interval_s: float = 10.0
     watchdog_ms: int = 1000
     monitor: bool = True
@@ -212,7 +213,7 @@ _KEYS = {
                "writable_registers"},
     "io": {"layer", "device"},
     "retain": {"file", "interval_ms", "registers"},
-    "scan": {"realtime", "rt_priority", "cpu", "status_interval_s", "watchdog_ms"},
+    "scan": {"realtime", "rt_priority", "cpu", "cpu_latency_us", "status_interval_s", "watchdog_ms"},
     "monitor": {"enabled", "socket", "token_file", "audit_file"},
 }
 
@@ -352,6 +353,8 @@ def load_config(path: Path) -> RunConfig:
         cfg.rt_priority = _check_int(where("scan", "rt_priority"), scan["rt_priority"], 1, 99)
     if "cpu" in scan:       # the machine that runs it may not be this one: the runtime checks it is online
         cfg.cpu = _check_int(where("scan", "cpu"), scan["cpu"], 0, MAX_CPU)
+    if "cpu_latency_us" in scan:
+        cfg.cpu_latency_us = _check_int(where("scan", "cpu_latency_us"), scan["cpu_latency_us"], 0, 2000000000)
     if "status_interval_s" in scan:
         value = scan["status_interval_s"]
         if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
@@ -414,6 +417,8 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
         argv.append("--no-rt")
     if cfg.cpu is not None:
         argv += ["--cpu", str(cfg.cpu)]
+    if cfg.cpu_latency_us is not None:
+        argv += ["--cpu-latency", str(cfg.cpu_latency_us)]
     if cfg.read_only:
         argv.append("--read-only")
     if cfg.io == "modbus":

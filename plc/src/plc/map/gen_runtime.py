@@ -75,5 +75,7 @@ def runtime_toml(rmap: RegisterMap) -> str:
         "# [scan]",
         "# cpu = 1         # pin the scan thread (only it) to CPU 1, kept free of other work (isolcpus=, systemd",
         "#                 # CPUAffinity=, taskset); default: not pinned",
+        "# cpu_latency_us = 0  # keep the CPUs out of idle states slower to wake than this (PM QoS); 0: idle",
+        "#                     # CPUs poll, the lowest wake-up jitter for the most power; default: none",
         "",
     ])

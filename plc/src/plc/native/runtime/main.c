@@ -64,6 +64,9 @@ static void usage(FILE *f)
 "                           the Modbus server thread runs 10 levels below it)\n"
 "  --cpu N                  pin the scan thread (only it) to CPU N, an online CPU\n"
 "                           (default: not pinned; keep other work off N, e.g. isolcpus=)\n"
+"  --cpu-latency US         while running, keep every CPU out of idle states that take\n"
+"                           longer than US microseconds to wake (PM QoS, /dev/cpu_dma_latency;\n"
+"                           0: idle CPUs poll: lowest wake-up jitter, most power; default: none)\n"
 "  --status auto|tty|log|off  live status line (auto: on a terminal, else log lines)\n"
 "  --status-interval S      seconds between status log lines when not on a terminal (default 10)\n"
 "  --duration S             stop after S seconds (benchmarks; default: run until SIGINT/SIGTERM)\n"
@@ -192,7 +195,7 @@ static int parse_cpu(const char *text, int *out)
 }
 
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_IO_DEVICE, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
-       OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_CPU, OPT_STATUS,
+       OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_CPU, OPT_CPU_LATENCY, OPT_STATUS,
        OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP,
        OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS };
 
@@ -215,6 +218,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "no-rt", no_argument, NULL, OPT_NO_RT },
         { "rt-priority", required_argument, NULL, OPT_RT_PRIORITY },
         { "cpu", required_argument, NULL, OPT_CPU },
+        { "cpu-latency", required_argument, NULL, OPT_CPU_LATENCY },
         { "status", required_argument, NULL, OPT_STATUS },
         { "status-interval", required_argument, NULL, OPT_STATUS_INTERVAL },
         { "duration", required_argument, NULL, OPT_DURATION },
@@ -242,6 +246,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     o->realtime = true;
     o->rt_priority = DEFAULT_RT_PRIORITY;
     o->cpu = -1;
+    o->cpu_latency_us = -1;
     o->status = STATUS_AUTO;
     o->status_interval_s = 10;
     o->watchdog_ms = DEFAULT_WATCHDOG_MS;
@@ -330,6 +335,11 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         case OPT_CPU:
             if ((rc = parse_cpu(optarg, &o->cpu)) != 0)
                 return rc;
+            break;
+        case OPT_CPU_LATENCY:
+            if (!parse_long(optarg, 0, 2000000000, &v))
+                return usage_error("--cpu-latency: '%s' is not a number of microseconds 0..2000000000", optarg);
+            o->cpu_latency_us = (int)v;
             break;
         case OPT_STATUS:
             if (strcmp(optarg, "auto") == 0) o->status = STATUS_AUTO;
@@ -425,6 +435,7 @@ int main(int argc, char **argv)
     if (rc != 0)
         return rc;
     rt.prog = &plc_program;
+    rt.cpu_latency_fd = -1;
     if (rt.opt.describe_retain) {
         if (rt.prog->abi_version != PLC_ABI_VERSION) {
             fprintf(stderr, RT_NAME ": error: program built for ABI %u, this runtime speaks ABI %u\n",
@@ -488,6 +499,7 @@ int main(int argc, char **argv)
     }
     scan_setup_realtime(&rt);
     status = scan_run(&rt);
+    scan_release_realtime(&rt);
     watchdog_stop(rt.watchdog);
 
     /* Outputs are safe now; flush retained data before anything else. */

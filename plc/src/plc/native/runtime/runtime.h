@@ -238,6 +238,7 @@ typedef struct rt_options {
     bool realtime;
     int rt_priority;
     int cpu;                       /* the scan thread's CPU (--cpu; -1: not pinned) */
+    int cpu_latency_us;            /* PM QoS limit on the CPUs' idle exit latency (--cpu-latency; -1: none) */
     status_mode_t status;
     double status_interval_s;      /* log-line status period when not on a TTY */
     double duration_s;             /* stop after this long (0: run until signalled) */
@@ -294,6 +295,7 @@ typedef struct events events_t;             /* monitor.h */
 
 struct runtime {
     rt_options_t opt;
+    int cpu_latency_fd;            /* /dev/cpu_dma_latency held open while running (-1: none) */
     const plc_program_t *prog;
     uint64_t period_ns;
 
@@ -348,7 +350,8 @@ uint16_t image_prog_holding(const prog_image_t *p, unsigned addr);
 void image_prog_set_holding(prog_image_t *p, unsigned addr, uint16_t v);
 
 /* scan.c */
-void scan_setup_realtime(runtime_t *rt);            /* --cpu, then SCHED_FIFO: on the scan thread */
+void scan_setup_realtime(runtime_t *rt);            /* --cpu, --cpu-latency, then SCHED_FIFO: on the scan thread */
+void scan_release_realtime(runtime_t *rt);          /* lets go of the --cpu-latency request */
 int scan_run(runtime_t *rt);
 uint64_t now_ns(void);
 

@@ -16,6 +16,7 @@
  */
 #define _GNU_SOURCE
 #include <errno.h>
+#include <fcntl.h>
 #include <inttypes.h>
 #include <pthread.h>
 #include <sched.h>
@@ -23,6 +24,7 @@
 #include <string.h>
 #include <sys/mman.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "runtime.h"
 #include "monitor.h"
@@ -115,12 +117,49 @@ static void pin_scan_thread(runtime_t *rt)
         log_msg(rt->log, LOG_INFO, "scan thread pinned to CPU %d", rt->opt.cpu);
 }
 
+/* --cpu-latency: a PM QoS request, in force while the file stays open (the
+ * kernel takes the lowest of all open requests; closing withdraws ours).  On a
+ * CPU that sleeps between scans the wake-up waits for the idle state's exit: 0
+ * keeps idle CPUs polling, as cyclictest does while it measures.  A failure is
+ * reported and the scan runs with the kernel's idle states. */
+static void hold_cpu_latency(runtime_t *rt)
+{
+    int32_t us = rt->opt.cpu_latency_us;
+    int fd;
+
+    if (us < 0)
+        return;
+    fd = open("/dev/cpu_dma_latency", O_WRONLY | O_CLOEXEC);
+    if (fd < 0) {
+        log_msg(rt->log, LOG_WARN, "cannot limit the CPUs' idle exit latency to %d us (/dev/cpu_dma_latency: %s); "
+                "wake-up jitter will be higher", (int)us, strerror(errno));
+        return;
+    }
+    if (write(fd, &us, sizeof us) != (ssize_t)sizeof us) {
+        log_msg(rt->log, LOG_WARN, "cannot limit the CPUs' idle exit latency to %d us (writing "
+                "/dev/cpu_dma_latency: %s); wake-up jitter will be higher", (int)us, strerror(errno));
+        close(fd);
+        return;
+    }
+    rt->cpu_latency_fd = fd;
+    log_msg(rt->log, LOG_INFO, "CPU idle exit latency limited to %d us while running (PM QoS)%s", (int)us,
+            us == 0 ? ": idle CPUs poll" : "");
+}
+
+void scan_release_realtime(runtime_t *rt)
+{
+    if (rt->cpu_latency_fd >= 0)
+        close(rt->cpu_latency_fd);
+    rt->cpu_latency_fd = -1;
+}
+
 void scan_setup_realtime(runtime_t *rt)
 {
     struct sched_param sp;
     int rc;
 
     pin_scan_thread(rt);
+    hold_cpu_latency(rt);
     if (!rt->opt.realtime) {
         log_msg(rt->log, LOG_INFO, "real-time scheduling off (--no-rt)");
         return;
