@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import ast as A
-from . import portability, service
+from . import cliargs, portability, service
 from .diagnostics import Diagnostics, SourceSet
 from .driver import collect_files, compile_sources, display_name, load_user_file
 from .parser import parse
+from .cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
-EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 KIND_ORDER = {"TYPE": 0, "FUNCTION": 1, "FUNCTION_BLOCK": 2, "PROGRAM": 3, "CONFIGURATION": 4}
 
 
@@ -231,10 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str]) -> int:
     from .testrunner import project_root
     parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    args, code = cliargs.parse(parser, argv)
+    if args is None:
+        return code
     if args.target != "openplc":
         try:
             return args.func(args)

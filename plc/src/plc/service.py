@@ -36,9 +36,9 @@ import time
 from pathlib import Path
 
 from . import runtime
+from .cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 from .driver import compile_sources, print_diagnostics
 
-EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 DEFAULT_NAME = "atc-plc"
 DEFAULT_WATCHDOG_SEC = 3
 RETAIN_FILE = "plc.retain"

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from .. import runtime
 from .monitor import Monitor, MonitorError, read_token
+from .. import cliargs
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -102,10 +103,9 @@ def run(args, m: Monitor) -> int:
 
 def main(argv: list[str]) -> int:
     parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else 2
+    args, code = cliargs.parse(parser, argv)
+    if args is None:
+        return code
     m = Monitor(args.socket)
     try:
         m.connect()

@@ -33,6 +33,7 @@ from ..host.tags import MapError, Tags
 from ..map.cli import default_map
 from . import mapinfo, status
 from .monitor import Monitor, MonitorError
+from .. import cliargs
 
 STATIC = Path(__file__).parent / "static"
 ALARM_KEEP = 500                 # alarms kept in the history file
@@ -479,10 +480,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else 2
+    args, code = cliargs.parse(parser, argv)
+    if args is None:
+        return code
     try:
         from aiohttp import web
     except ImportError:

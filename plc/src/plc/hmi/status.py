@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from ..host.modbus import LinkError, ModbusClient, ModbusException
+from .. import cliargs
 
 DIAG_BASE, DIAG_COUNT = 1024, 64
 # name: (offset, words); times in microseconds
@@ -72,10 +73,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--host", default="127.0.0.1", help="PLC address (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=5020, help="Modbus/TCP port (default 5020)")
     p.add_argument("--json", action="store_true", help="print the raw fields as JSON")
-    try:
-        args = p.parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else 2
+    args, code = cliargs.parse(p, argv)
+    if args is None:
+        return code
     client = ModbusClient(args.host, args.port)
     try:
         client.connect()

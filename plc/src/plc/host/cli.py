@@ -28,6 +28,7 @@ from .mailbox import Mailbox, mailbox_in_map, message_texts
 from .modbus import LinkError, ModbusClient, ModbusException
 from .session import HostError, Session, Timeouts
 from .tags import MapError, load_map
+from .. import cliargs
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_SKIPPED = 0, 1, 2, 3
 PROMPT_HELP = """  Tn            prepare tool n (pocket n, or the tool table's)
@@ -182,10 +183,9 @@ def interactive(session: Session, pockets: dict[int, int], say) -> int:
 
 def main(argv: list[str]) -> int:
     parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    args, code = cliargs.parse(parser, argv)
+    if args is None:
+        return code
 
     def say(text: str) -> None:
         print(text, flush=True)

@@ -15,8 +15,9 @@ from pathlib import Path
 from ..diagnostics import Diagnostics
 from ..resources import source_checkout
 from .generate import drift, load_and_check, outputs, write
+from .. import cliargs
+from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
-EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 DEFAULT_MAP = Path("modbus_map") / "map.toml"
 
 
@@ -59,10 +60,9 @@ def _report(diags: Diagnostics, quiet: bool) -> None:
 
 def main(argv: list[str]) -> int:
     parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    args, code = cliargs.parse(parser, argv)
+    if args is None:
+        return code
     map_path = args.map or default_map()
     if not map_path.is_file():
         print(f"plc map: error: no such file: {map_path}", file=sys.stderr)

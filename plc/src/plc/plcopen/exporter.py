@@ -25,8 +25,9 @@ from ..driver import UserError, collect_files, display_name, read_source
 from ..parser import parse
 from .datatypes import ELEMENTARY
 from .xmlfile import NS, XHTML, XmlError, children, parse_bytes, path
+from .. import cliargs
+from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
-EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 FIXED_TIME = "2000-01-01T00:00:00"
 SECTION_LIST = {"VAR_INPUT": "inputVars", "VAR_OUTPUT": "outputVars", "VAR_IN_OUT": "inOutVars",
                 "VAR_EXTERNAL": "externalVars", "VAR_GLOBAL": "globalVars", "VAR": "localVars",
@@ -308,10 +309,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     from ..testrunner import project_root
-    try:
-        args = build_parser().parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    args, code = cliargs.parse(build_parser(), argv)
+    if args is None:
+        return code
     root = project_root()
     paths = args.paths or ([str(root / "st_src")] if root else [])
     if not paths:

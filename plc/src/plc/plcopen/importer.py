@@ -16,8 +16,9 @@ from pathlib import Path
 from ..diagnostics import Diagnostics, SourceSet
 from ..driver import UserError, compile_sources, decode, display_name, print_diagnostics, read_bytes
 from . import translate
+from .. import cliargs
+from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
-EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 
 
 def unit_files(tr) -> dict[str, str]:
@@ -51,10 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str]) -> int:
-    try:
-        args = build_parser().parse_args(argv)
-    except SystemExit as exc:
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    args, code = cliargs.parse(build_parser(), argv)
+    if args is None:
+        return code
     try:
         data = read_bytes(args.file)
     except UserError as e:

@@ -19,8 +19,9 @@ from .assemble import check_files, check_set, display_path
 from .diagnostics import Diagnostics
 from .encoding import MAX_TOOLS, Kind
 from .stgen import generate, stable_name
+from .. import cliargs
+from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
-EXIT_OK, EXIT_FINDINGS, EXIT_USAGE = 0, 1, 2
 
 
 class _Parser(argparse.ArgumentParser):
@@ -153,10 +154,9 @@ def _drift(args: argparse.Namespace, current: str | None, text: str) -> int:
 def main(argv: list[str]) -> int:
     """Entry point for `plc seq ...`; argv excludes the program name and the word `seq`."""
     parser = _build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help (0) or a usage error (2); argparse already printed
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
+    args, code = cliargs.parse(parser, argv)
+    if args is None:
+        return code
     if args.command == "check":
         return _check(args)
     return _compile(args)
