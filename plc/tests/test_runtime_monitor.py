@@ -70,20 +70,12 @@ pairs[2].b := button;
 END_PROGRAM
 """
 
-CONFIG = """\
-CONFIGURATION Config0
-    RESOURCE Res0 ON PLC
-        TASK MainTask(INTERVAL := T#4ms, PRIORITY := 0);
-        PROGRAM inst0 WITH MainTask : Main;
-    END_RESOURCE
-END_CONFIGURATION
-"""
 TOKEN = "test-token-0123456789abcdef"
 
 
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:
-    return h.st_runtime_binary(tmp_path_factory.mktemp("mon"), {"Main.st": MAIN, "Config0.st": CONFIG})
+    return h.st_runtime_binary(tmp_path_factory.mktemp("mon"), {"Main.st": MAIN, "Config0.st": h.MAIN_EVERY_4MS})
 
 
 class Plc:

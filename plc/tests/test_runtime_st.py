@@ -41,19 +41,11 @@ END_PROGRAM
 """
 DIVISION_LINE = 20
 
-CONFIG = """\
-CONFIGURATION Config0
-    RESOURCE Res0 ON PLC
-        TASK MainTask(INTERVAL := T#4ms, PRIORITY := 0);
-        PROGRAM inst0 WITH MainTask : Main;
-    END_RESOURCE
-END_CONFIGURATION
-"""
 
 
 @pytest.fixture(scope="module")
 def binary(tmp_path_factory) -> Path:
-    return h.st_runtime_binary(tmp_path_factory.mktemp("st"), {"Main.st": MAIN, "Config0.st": CONFIG})
+    return h.st_runtime_binary(tmp_path_factory.mktemp("st"), {"Main.st": MAIN, "Config0.st": h.MAIN_EVERY_4MS})
 
 
 def test_compiled_st_runs_on_the_openplc_map_and_keeps_retain(binary, tmp_path):

@@ -62,6 +62,17 @@ def runtime_binary(program_c: Path = BASIC, **defines: object) -> Path:
     return build_runtime(program_c, CACHE, sanitize=SANITIZE)
 
 
+# The configuration of a test program: PROGRAM Main as instance inst0, every 4 ms.
+MAIN_EVERY_4MS = """\
+CONFIGURATION Config0
+    RESOURCE Res0 ON PLC
+        TASK MainTask(INTERVAL := T#4ms, PRIORITY := 0);
+        PROGRAM inst0 WITH MainTask : Main;
+    END_RESOURCE
+END_CONFIGURATION
+"""
+
+
 def st_runtime_binary(src: Path, files: dict[str, str]) -> Path:
     """The runtime built around an ST program compiled by our compiler: `files` (name -> text) are written to
     the directory `src`, which must compile without errors."""

@@ -123,6 +123,15 @@ void image_prog_set_holding(prog_image_t *p, unsigned a, uint16_t v)
 
 /* ------------------------------------------------------- scan boundaries */
 
+/* The address of the lowest set bit of word w of a dirty set, cleared from *bits. */
+static inline unsigned pop_lowest(uint64_t *bits, unsigned w)
+{
+    unsigned a = w * 64 + (unsigned)__builtin_ctzll(*bits);
+
+    *bits &= *bits - 1;
+    return a;
+}
+
 void image_take_host_writes(runtime_t *rt)
 {
     bus_image_t *b = &rt->bimg;
@@ -133,8 +142,7 @@ void image_take_host_writes(runtime_t *rt)
     for (unsigned w = 0; w < MAP_BITS / 64 + 1; w++) {
         uint64_t bits = b->dirty_coils.bits[w];
         while (bits) {
-            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
-            bits &= bits - 1;
+            unsigned a = pop_lowest(&bits, w);
             p->qx[a] = b->pending_coils[a];
         }
         b->dirty_coils.bits[w] = 0;
@@ -142,8 +150,7 @@ void image_take_host_writes(runtime_t *rt)
     for (unsigned w = 0; w < MAP_HOLDING / 64; w++) {
         uint64_t bits = b->dirty_holding.bits[w];
         while (bits) {
-            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
-            bits &= bits - 1;
+            unsigned a = pop_lowest(&bits, w);
             image_prog_set_holding(p, a, b->pending_holding[a]);
         }
         b->dirty_holding.bits[w] = 0;
@@ -176,16 +183,14 @@ static void overlay_pending(bus_image_t *b)
     for (unsigned w = 0; w < MAP_BITS / 64 + 1; w++) {
         uint64_t bits = b->dirty_coils.bits[w];
         while (bits) {
-            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
-            bits &= bits - 1;
+            unsigned a = pop_lowest(&bits, w);
             b->coils[a] = b->pending_coils[a];
         }
     }
     for (unsigned w = 0; w < MAP_HOLDING / 64; w++) {
         uint64_t bits = b->dirty_holding.bits[w];
         while (bits) {
-            unsigned a = w * 64 + (unsigned)__builtin_ctzll(bits);
-            bits &= bits - 1;
+            unsigned a = pop_lowest(&bits, w);
             b->holding[a] = b->pending_holding[a];
         }
     }
