@@ -102,6 +102,11 @@ def test_realtime_scheduling_is_used_or_reported_once(binary):
     assert len(server) == 1, err
 
 
+def scans_go_on(c: h.Client, n: int = 10) -> None:
+    first = h.read_diag(c)["scans"]
+    h.wait_until(lambda: h.read_diag(c)["scans"] >= first + n, 5, f"{n} more scans")
+
+
 def cpus_allowed(pid: int, tid: int) -> set[int]:
     """The CPUs thread `tid` of process `pid` may run on (Cpus_allowed_list of /proc)."""
     text = Path(f"/proc/{pid}/task/{tid}/status").read_text()
@@ -116,8 +121,7 @@ def cpus_allowed(pid: int, tid: int) -> set[int]:
 def test_cpu_pins_the_scan_thread_only_and_scans_go_on(binary):
     cpu = min(os.sched_getaffinity(0))                   # CPU 0 unless this test is kept off it
     with h.Runtime(binary, "--no-rt", "--cpu", str(cpu)) as rt, h.Client(rt.port) as c:
-        first = h.read_diag(c)["scans"]
-        h.wait_until(lambda: h.read_diag(c)["scans"] >= first + 10, 5, "10 more scans")
+        scans_go_on(c)
         assert f"scan thread pinned to CPU {cpu}" in rt.log, rt.log
         pid = rt.proc.pid
         assert cpus_allowed(pid, pid) == {cpu}           # the scan runs on the main thread
@@ -161,8 +165,7 @@ def test_cpu_latency_is_requested_while_running_and_withdrawn_at_the_end(binary)
     if before <= 7:
         pytest.skip(f"another program already holds a CPU latency request of {before} us")
     with h.Runtime(binary, "--no-rt", "--cpu-latency", "7") as rt, h.Client(rt.port) as c:
-        first = h.read_diag(c)["scans"]
-        h.wait_until(lambda: h.read_diag(c)["scans"] >= first + 10, 5, "10 more scans")
+        scans_go_on(c)
         assert "CPU idle exit latency limited to 7 us while running (PM QoS)" in rt.log, rt.log
         assert cpu_latency_request() == 7
     h.wait_until(lambda: cpu_latency_request() == before, 5, f"the request back at {before} us")

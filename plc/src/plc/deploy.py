@@ -18,10 +18,10 @@ from pathlib import Path
 
 from . import ast as A
 from . import cliargs, portability, service
+from .cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 from .diagnostics import Diagnostics, SourceSet
 from .driver import collect_files, compile_sources, display_name, load_user_file
 from .parser import parse
-from .cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
 KIND_ORDER = {"TYPE": 0, "FUNCTION": 1, "FUNCTION_BLOCK": 2, "PROGRAM": 3, "CONFIGURATION": 4}
 

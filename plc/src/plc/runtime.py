@@ -39,6 +39,7 @@ Configuration file (every key optional; paths relative to the file's directory):
     realtime = true                 # ask for SCHED_FIFO
     rt_priority = 50
     # cpu = 1                       # pin the scan thread (only it) to this CPU (default: not pinned)
+    # cpu_latency_us = 0            # no CPU idle state slower to wake than this while running (PM QoS)
     status_interval_s = 10          # status log line period when not on a terminal
     watchdog_ms = 1000              # longest run() call before outputs are forced safe (0 = off)
 """

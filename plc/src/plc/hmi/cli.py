@@ -21,9 +21,8 @@ import json
 import sys
 from pathlib import Path
 
-from .. import runtime
+from .. import cliargs, runtime
 from .monitor import Monitor, MonitorError, read_token
-from .. import cliargs
 
 
 def build_parser() -> argparse.ArgumentParser:

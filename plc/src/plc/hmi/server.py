@@ -26,14 +26,13 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import runtime
+from .. import cliargs, runtime
 from ..host.modbus import LinkError, ModbusClient, ModbusException
 from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
 from . import mapinfo, status
 from .monitor import Monitor, MonitorError
-from .. import cliargs
 
 STATIC = Path(__file__).parent / "static"
 ALARM_KEEP = 500                 # alarms kept in the history file

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..host.modbus import LinkError, ModbusClient, ModbusException
 from .. import cliargs
+from ..host.modbus import LinkError, ModbusClient, ModbusException
 
 DIAG_BASE, DIAG_COUNT = 1024, 64
 # name: (offset, words); times in microseconds

@@ -23,12 +23,12 @@ import re
 import sys
 from pathlib import Path
 
+from .. import cliargs
 from ..map.cli import default_map
 from .mailbox import Mailbox, mailbox_in_map, message_texts
 from .modbus import LinkError, ModbusClient, ModbusException
 from .session import HostError, Session, Timeouts
 from .tags import MapError, load_map
-from .. import cliargs
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_SKIPPED = 0, 1, 2, 3
 PROMPT_HELP = """  Tn            prepare tool n (pocket n, or the tool table's)

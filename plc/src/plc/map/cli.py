@@ -12,11 +12,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from .. import cliargs
+from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 from ..diagnostics import Diagnostics
 from ..resources import source_checkout
 from .generate import drift, load_and_check, outputs, write
-from .. import cliargs
-from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
 DEFAULT_MAP = Path("modbus_map") / "map.toml"
 

@@ -19,14 +19,13 @@ from pathlib import Path
 from lxml import etree
 
 from .. import ast as A
-from .. import portability
+from .. import cliargs, portability
+from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 from ..diagnostics import Diagnostics, Pos
 from ..driver import UserError, collect_files, display_name, read_source
 from ..parser import parse
 from .datatypes import ELEMENTARY
 from .xmlfile import NS, XHTML, XmlError, children, parse_bytes, path
-from .. import cliargs
-from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 
 FIXED_TIME = "2000-01-01T00:00:00"
 SECTION_LIST = {"VAR_INPUT": "inputVars", "VAR_OUTPUT": "outputVars", "VAR_IN_OUT": "inOutVars",

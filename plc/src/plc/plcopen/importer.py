@@ -13,12 +13,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from .. import cliargs
+from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 from ..diagnostics import Diagnostics, SourceSet
 from ..driver import UserError, compile_sources, decode, display_name, print_diagnostics, read_bytes
 from . import translate
-from .. import cliargs
-from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
-
 
 
 def unit_files(tr) -> dict[str, str]:
