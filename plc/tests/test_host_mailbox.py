@@ -79,29 +79,69 @@ class FakeTags:
     def get(self, name: str):
         return self.values[name]
 
+    def read(self, *names: str) -> dict:
+        return {n: self.values[n] for n in names}
+
     def write(self, **values) -> None:
         self.writes.append(values)
         self.values.update(values)
 
 
-def test_a_request_whose_arguments_are_still_the_last_ones_waits_for_the_next_read():
-    """The id (registers 10..13) and the arguments (%MD) are two reads: with MbxArgsId still the last request's id
-    the arguments are the last request's too (FEEDRATE's empty Z before a MOVEABS Z-5), so nothing is executed or
-    answered until a read shows both ids equal."""
+def _request(rid: int, opcode: int, mask: int, z: int, text: int = 0) -> dict:
+    """The PLC's mailbox registers for one request: block 0..13 and the record (2048..2069)."""
+    return {"MbxRequestId": rid, "MbxOpcode": opcode, "MbxText": text, "MbxAxisMask": mask,
+            "MbxX": 50000 if mask & 1 else 0, "MbxY": 20000 if mask & 2 else 0, "MbxZ": z,
+            "MbxA": 0, "MbxB": 0, "MbxC": 0, "MbxValue": 0 if opcode != 3 else 40000,
+            "MbxArgsOpcode": opcode, "MbxArgsText": text, "MbxArgsMask": mask, "MbxArgsId": rid}
+
+
+def test_the_host_executes_the_record_one_read_shows_whatever_the_other_block_shows():
+    """Skew injection for `plc host`: block 0..13 (MbxRequestId, MbxOpcode, MbxText, MbxAxisMask) is another read
+    than the record, so it may show the last request, the next, or any mix. For every mix of those four fields
+    (old request 25, X/Y move; new request 26, Z only) next to the old and then the new record, the host executes
+    nothing while the record is the answered one and exactly the record's request once it is new."""
+    from itertools import product
+
     from plc.host.mailbox import MOVEABS, RESULT_OK, Mailbox
-    stale = {"MbxRequestId": 8, "MbxOpcode": MOVEABS, "MbxText": 0, "MbxAxisMask": 4, "MbxValue": 0,
-             "MbxArgsId": 7, "MbxX": 0, "MbxY": 0, "MbxZ": 0, "MbxA": 0, "MbxB": 0, "MbxC": 0}
-    tags = FakeTags(stale)
+    old, new = _request(25, MOVEABS, 3, 0), _request(26, MOVEABS, 4, -5000)
+    head = ("MbxRequestId", "MbxOpcode", "MbxText", "MbxAxisMask")
+    executed = 0
+    for mix in product((old, new), repeat=len(head)):
+        for record in (old, new):
+            shown = dict(record, **{name: src[name] for name, src in zip(head, mix)})
+            tags = FakeTags(shown)
+            box = Mailbox(tags, [].append, answer="ok")
+            box._last_id = 25                               # request 25 was answered
+            req = box.step(shown)
+            if record is old:
+                assert req is None and tags.writes == [], f"executed the answered request with {shown}"
+                continue
+            executed += 1
+            assert req is not None and req.id == 26 and req.axes == {"Z": -5.0}, (req, shown)
+            assert tags.writes == [{"MbxAnswerResult": RESULT_OK}, {"MbxAnswerId": 26}]
+    assert executed == 2 ** len(head)
+
+
+def test_a_request_withdrawn_while_executed_is_not_answered():
+    from plc.host.mailbox import MOVEABS, Mailbox
+    shown = _request(9, MOVEABS, 4, -5000)
+    tags = FakeTags(dict(shown, MbxArgsOpcode=0))        # the PLC withdrew it (abort) before the host answered
     said: list[str] = []
     box = Mailbox(tags, said.append, answer="ok")
-    assert box.step(stale) is None and tags.writes == [] and said == []
-    fresh = dict(stale, MbxArgsId=8, MbxZ=-5000)
-    tags.values.update(fresh)
-    req = box.step(fresh)
-    assert req is not None and req.axes == {"Z": -5.0}
-    assert tags.writes == [{"MbxAnswerResult": RESULT_OK}, {"MbxAnswerId": 8}]
-    assert box.position == {"Z": -5.0} and any("MOVEABS Z-5" in line for line in said), said
-    assert box.step(fresh) is None, "served once per id"
+    assert box.step(shown) is not None and tags.writes == []
+    assert any("withdrawn" in line for line in said), said
+
+
+def test_the_host_reads_the_whole_record_in_one_request():
+    """The session's poll reads the record's registers in one Modbus request, so the runtime's between-scans
+    answer makes it one request's record; a map whose record is split is refused when the mailbox is attached."""
+    from plc.host.mailbox import RECORD, REQUEST
+    from plc.host.tags import Tags, load_map
+    rmap = load_map(REPO / "modbus_map" / "map.toml")
+    tags = Tags(rmap, client=None)
+    watch = tuple(s.name for s in rmap.signals) + REQUEST
+    assert tags.read_together(watch, RECORD)
+    assert not tags.read_together(watch, RECORD + ("MbxRequestId",)), "block 0..13 is another request"
 
 
 def test_without_the_mailbox_the_plc_answers_itself(plc):

@@ -236,7 +236,11 @@ def main(argv: list[str]) -> int:
     mailbox = None
     if not args.no_mailbox and mailbox_in_map(session.tags):
         mailbox = Mailbox(session.tags, say=out, answer=args.answer, edge=args.edge == "reached", texts=texts)
-        session.attach_mailbox(mailbox)
+        try:
+            session.attach_mailbox(mailbox)
+        except ValueError as exc:
+            print(f"plc host: error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
     status = EXIT_FAILED
     try:
         s = session.start()

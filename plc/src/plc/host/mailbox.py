@@ -2,8 +2,9 @@
 
 A sequence step that only the CNC can do (MOVEABS, MOVETOEDGE, FEEDRATE, SPINDLE, MESSAGE, DIALOG) is published by
 the PLC as a request: MbxRequestId (new for every request), MbxOpcode and the arguments (MbxAxisMask, MbxX..MbxC and
-MbxValue in thousandths, MbxText) and MbxArgsId, the id again in the arguments' block: the id and the arguments
-are two reads, so a request is taken only when both ids agree (else the arguments may be the last request's).
+MbxValue in thousandths, MbxText).  What a host executes comes from one read of the mailbox record (holding
+2048..2069: the arguments, MbxArgsOpcode/Text/Mask and last MbxArgsId, the request id): the runtime answers a
+read between two scans, so one read shows one request, whatever another read (block 0..13) shows meanwhile.
 The PLC waits for these requests to be answered only while the host holds the
 coil MbxHostActive TRUE; else it acknowledges them itself.  The host answers with MbxAnswerResult, then (in a
 later write) MbxAnswerId = the request's id, so the PLC never takes an id with the previous result.
@@ -25,8 +26,10 @@ OPCODE_NAMES = {MOVEABS: "MOVEABS", MOVETOEDGE: "MOVETOEDGE", FEEDRATE: "FEEDRAT
                 SPINDLE_CCW: "SPINDLE CCW", SPINDLE_STOP: "SPINDLE STOP", MESSAGE: "MESSAGE", DIALOG: "DIALOG"}
 RESULT_OK, RESULT_EDGE, RESULT_NO_EDGE, RESULT_CANCEL, RESULT_FAILED = 1, 2, 3, -1, -2
 AXES = ("X", "Y", "Z", "A", "B", "C")            # bit i of MbxAxisMask = AXES[i], argument register Mbx<axis>
-REQUEST = ("MbxRequestId", "MbxOpcode", "MbxText", "MbxAxisMask", "MbxValue", "MbxArgsId") \
-    + tuple(f"Mbx{a}" for a in AXES)
+# the mailbox record: one contiguous block of holding registers, read in one transaction (Tags.read); the request
+# the host executes is made of these fields only
+RECORD = tuple(f"Mbx{a}" for a in AXES) + ("MbxValue", "MbxArgsOpcode", "MbxArgsText", "MbxArgsMask", "MbxArgsId")
+REQUEST = ("MbxRequestId", "MbxOpcode", "MbxText", "MbxAxisMask") + RECORD
 MAILBOX = ("MbxHostActive", "MbxAnswerId", "MbxAnswerResult") + REQUEST
 
 
@@ -57,10 +60,11 @@ class Request:
     value: float                 # feed (units/s) or spindle speed (rpm)
 
     @staticmethod
-    def from_values(s: dict) -> "Request":
-        mask = int(s["MbxAxisMask"])
+    def from_record(s: dict) -> "Request":
+        """The request one read of the mailbox record shows (RECORD; no field of another read)."""
+        mask = int(s["MbxArgsMask"])
         axes = {a: int(s[f"Mbx{a}"]) / 1000.0 for i, a in enumerate(AXES) if mask & (1 << i)}
-        return Request(int(s["MbxRequestId"]), int(s["MbxOpcode"]), int(s["MbxText"]), axes,
+        return Request(int(s["MbxArgsId"]), int(s["MbxArgsOpcode"]), int(s["MbxArgsText"]), axes,
                        int(s["MbxValue"]) / 1000.0)
 
 
@@ -95,16 +99,16 @@ class Mailbox:
         self.tags.write(MbxHostActive=False)
 
     def step(self, s: dict) -> Request | None:
-        """Serve the request the values s show, once per id; returns the request served, else None."""
-        rid, opcode = int(s.get("MbxRequestId", 0)), int(s.get("MbxOpcode", 0))
+        """Serve the request the mailbox record in s shows (s must hold one read of RECORD), once per id; returns
+        the request served, else None."""
+        rid, opcode = int(s.get("MbxArgsId", 0)), int(s.get("MbxArgsOpcode", 0))
         if opcode == 0 or rid == 0 or rid == self._last_id:
             return None
-        if int(s.get("MbxArgsId", rid)) != rid:
-            return None             # the arguments read are still the last request's: the next poll has them
-        req = Request.from_values(s)
+        req = Request.from_record(s)
         self._last_id = rid
         result = self.execute(req)
-        if int(self.tags.get("MbxRequestId")) != rid or int(self.tags.get("MbxOpcode")) == 0:
+        now = self.tags.read("MbxArgsId", "MbxArgsOpcode")
+        if int(now["MbxArgsId"]) != rid or int(now["MbxArgsOpcode"]) == 0:
             self.say(f"mailbox #{rid}: withdrawn by the PLC before the answer (abort or timeout); not answered")
             return req
         self.tags.write(MbxAnswerResult=result)

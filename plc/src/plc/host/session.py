@@ -88,9 +88,13 @@ class Session:
 
     def attach_mailbox(self, mailbox) -> None:
         """Serve the PLC's sequence mailbox on every poll (also while a change waits for tool-changed)."""
-        from .mailbox import REQUEST
+        from .mailbox import RECORD, REQUEST
+        watch = self.watch + tuple(n for n in REQUEST if n not in self.watch)
+        if not self.tags.read_together(watch, RECORD):
+            raise ValueError("the mailbox record (" + ", ".join(RECORD) + ") is not one block of holding registers "
+                             "of the register map: a host would execute fields of two reads")
         self.mailbox = mailbox
-        self.watch = self.watch + tuple(n for n in REQUEST if n not in self.watch)
+        self.watch = watch
 
     # ---------------------------------------------------------------- start / stop --
     def start(self) -> dict:

@@ -114,6 +114,10 @@ class Tags:
         self._plans[names] = runs
         return runs
 
+    def read_together(self, names: tuple[str, ...], group: tuple[str, ...]) -> bool:
+        """True if read(*names) fetches every signal of `group` in one request (one consistent view)."""
+        return any(all(n in {s.name for s in run.signals} for n in group) for run in self._plan(tuple(names)))
+
     def read(self, *names: str) -> dict[str, int | float | bool]:
         """Current values of the named signals (one request per run of nearby addresses)."""
         out: dict[str, int | float | bool] = {}

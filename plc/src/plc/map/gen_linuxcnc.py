@@ -259,8 +259,14 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
     out.append("# ---- realtime helpers (all in " + thread + ")")
     for module, names, extra in comps:
         out.append(f"loadrt {module} names={','.join(names)}" + (f" {extra}" if extra else ""))
+    # The conversions of the PLC's registers run in descending address order within each component: mb2hal sets
+    # a transaction's pins in ascending order, so a register's conversion never runs before that of a register
+    # mb2hal set earlier in the same pass. Motion then never sees the last register of a read (the mailbox
+    # record's MbxArgsId) new while an earlier one is still old (docs/linuxcnc.md, the mailbox record).
+    helper_address = {f"atc-{kind}-{_net(s.name)[4:]}": s.address
+                      for s in signed + joined for kind in ("sign", "s32", "join")}
     for module, names, _extra in comps:
-        for name in names:
+        for name in sorted(names, key=lambda n: -helper_address.get(n, -1)):
             out.append(f"addf {name}{'.update' if module == 'siggen' else ''} {thread}")
     out.append("")
 
