@@ -166,6 +166,12 @@ def test_host_bits_for_mb2hal_must_be_contiguous(project):
               "(400..409) but is StartChange")
 
 
+def test_a_read_whose_pin_names_line_linuxcnc_would_cut_is_an_error(project):
+    """mb2hal (LinuxCNC 2.9) keeps 254 characters of a PIN_NAMES line and silently has no pins for the rest."""
+    edit(project / "modbus_map" / "map.toml", 'address = 2068\n', 'address = 2082\n')      # MbxArgsId, 14 spares on
+    assert "LinuxCNC 2.9 reads 254" in one_error(check(project), "PIN_NAMES line of")
+
+
 def test_host_command_coils_own_their_bytes(project):
     """OpenPLC v3 applies FC15 by whole bytes: a host's write rewrites every coil of the byte."""
     path = project / "modbus_map" / "map.toml"

@@ -33,6 +33,10 @@ from .model import RegisterMap, Signal, display
 MAX_READ_REGISTERS = 125
 MAX_READ_BITS = 2000
 READ_GAP = 16               # unused addresses a read transaction may span rather than split
+# LinuxCNC 2.9's INI reader keeps 255 characters of a line: mb2hal silently drops the pins of a longer PIN_NAMES
+# line's tail (seen: the record's last register, MbxArgsId, had no pin). Spare registers are named u<address>.
+MAX_INI_LINE = 254
+SPARE = "u"
 
 
 @dataclass
@@ -83,6 +87,12 @@ def plan(rmap: RegisterMap, diags: Diagnostics | None = None) -> list[Tx]:
     for i, run in enumerate(_runs(words_in, gap=READ_GAP, limit=MAX_READ_REGISTERS)):
         txs.append(_tx(_numbered("atc-words-in", i), "fnct_03_read_holding_registers", run, True))
     for tx in txs:
+        line = "PIN_NAMES=" + ",".join(n for n, _s in tx.pins)
+        if len(line) > MAX_INI_LINE:
+            first = next(s for _n, s in tx.pins if s is not None)
+            diags.error(rmap.pos(first, "address"), f"the mb2hal transaction {tx.name} from {first.name} needs a "
+                        f"PIN_NAMES line of {len(line)} characters; LinuxCNC 2.9 reads {MAX_INI_LINE}",
+                        "fewer or closer registers in one read, or shorter signal names")
         for _name, sig in tx.pins:
             if sig is not None and len(tx.pin(rmap, sig, "-lo" if sig.type == "DINT" else "")) > HAL_NAME_LEN:
                 diags.error(rmap.pos(sig, "name"), f"{sig.name}: HAL pin {tx.pin(rmap, sig)} is longer than "
@@ -115,7 +125,7 @@ def _tx(name: str, code: str, run: list[Signal], spares: bool) -> Tx:
         if sig is not None and sig.type == "DINT":
             tx.pins.append((sig.name + ("-hi" if a == sig.address else "-lo"), sig))
         else:
-            tx.pins.append((sig.name, sig) if sig is not None else (f"unused-{a}", None))
+            tx.pins.append((sig.name, sig) if sig is not None else (f"{SPARE}{a}", None))
     return tx
 
 
