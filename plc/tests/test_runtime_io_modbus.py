@@ -223,6 +223,7 @@ def m6_seconds(out: str) -> float:
 RIG_LINK = {"host_timeout_ms": 30000, "plc_timeout_ms": 15000}
 RIG_MACHINE = {"home_timeout_ms": 120000, "pocket_timeout_ms": 60000}
 AGE_LIMIT_MS = int(min(2000 * SLOW, 10000))
+RESPONSE_TIMEOUT_MS = int(min(250 * SLOW, 1000))
 
 
 def project(machine: str, tmp: Path) -> Path:
@@ -272,7 +273,7 @@ def make_rig(tmp: Path, transport: str, machine_name: str, units: tuple[int, ...
         link = {"tcp": "127.0.0.1", "port": module.port}
     # The age limit and the response time-out are far above any stall of a loaded test machine (the module is
     # Python, at normal priority), so a verdict does not depend on speed (see RIG_MACHINE).
-    common = {**link, "poll_ms": 5, "timeout_ms": int(min(250 * SLOW, 1000)),
+    common = {**link, "poll_ms": 5, "timeout_ms": RESPONSE_TIMEOUT_MS,
               "max_age_ms": AGE_LIMIT_MS, "backoff_ms": [50, 400]}
     if len(units) == 1:
         devices = [{"name": "changer", **common, "unit": units[0], "status_input": status_input(1),
@@ -329,6 +330,49 @@ def test_two_units_on_one_serial_line_complete_a_change(tmp_path):
             both = client.read_input_registers(IO_DIAG, 16)
         assert both[DIAG_STATE] == STATE_OK and both[8 + DIAG_STATE] == STATE_OK, both
         assert rig.module.machine.crashes == []
+    finally:
+        rig.close()
+
+
+def test_a_silent_unit_does_not_hold_back_the_safe_outputs_of_its_line_neighbour(tmp_path):
+    """Issue 37: on one RS-485 line the sensors board (unit 9) falls silent mid-turn; the motor-off of the
+    program's reaction must reach the actuators board (unit 3) within max_age_ms of the silence, although each try
+    of unit 9 holds the line for a response time-out and the drain after it.  Speed-independent: the time-outs
+    and the age limit scale together (ATC_TIMEOUT_SCALE); the slack left is one time-out of the line margin."""
+    sensors, actuators = 9, 3
+    rig = make_rig(tmp_path, "rtu", "default", units=(sensors, actuators))
+    try:
+        ok(rig.plc.host("clear", "T1 M6"), rig.plc)
+        result: dict = {}
+        host = threading.Thread(target=lambda: result.update(r=rig.plc.host("T5 M6")))
+        host.start()
+        wait_for(lambda: rig.module.coil("motor_on"), 60 * SLOW, "the carousel turning at the module")
+        silent_at = rig.module.set_mode("silent", units=(sensors,))
+        host.join(120 * SLOW)
+        r = result["r"]
+        assert r.returncode == 1 and "toolchanger error -111" in r.stdout, r.stdout + r.stderr
+        m = re.search(r"I/O device 1 \(sensors\): lost: .* outputs safe at monotonic ([0-9.]+) s", rig.plc.text())
+        assert m, rig.plc.text()[-3000:]
+        declared_at = float(m.group(1))
+        motor = rig.module.machine.wiring.motor_on
+
+        def offs() -> list[float]:
+            return [e[0] for e in list(rig.module.events) if e[0] > silent_at and e[1] == "coils" and not e[2][motor]]
+        # the host hears of the fault from the PLC's server at once; the motor-off travels on the serial line
+        wait_for(offs, 30 * SLOW, f"the motor-off at unit {actuators}")
+        off_at = offs()[0]
+        assert silent_at <= declared_at <= off_at, (silent_at, declared_at, off_at)
+        limit_s = AGE_LIMIT_MS / 1000
+        assert off_at - silent_at <= limit_s, (
+            f"motor-off at unit {actuators} {1000 * (off_at - silent_at):.0f} ms after unit {sensors} fell silent, "
+            f"limit {AGE_LIMIT_MS} ms")
+        # the neighbour kept its poll rate: never taken for lost while unit 9 held the line with its time-outs
+        assert rig.plc.read("IoModule1Lost", "IoModule2Lost") == {"IoModule1Lost": True, "IoModule2Lost": False}
+        assert "I/O device 2 (actuators): lost" not in rig.plc.text()
+        print(f"unit {sensors} silent -> declared lost {1000 * (declared_at - silent_at):.0f} ms -> motor-off at "
+              f"unit {actuators} {1000 * (off_at - declared_at):.0f} ms later: {1000 * (off_at - silent_at):.0f} ms "
+              f"after the silence, max_age_ms {AGE_LIMIT_MS} (response time-out {RESPONSE_TIMEOUT_MS} ms)")
+        rig.module.set_mode("normal")
     finally:
         rig.close()
 

@@ -24,9 +24,10 @@ image::
     holding_registers_read = [{ address = 0, count = 2, to = "%IW2" }]       # FC3
     holding_registers_write = [{ address = 8, count = 2, from = "%QW0", safe = 0 }]   # FC16
 
-Every problem is reported with `file:line:col` before anything starts: unknown keys, ranges that overlap (in the
-image, or on one device's table), a range outside the image, a missing serial device, a baud rate the serial
-driver cannot set.  `device_specs()` turns the checked devices into the runtime's `--io-device` arguments.
+Every problem is reported with `file:line:col` before anything starts, all of them in one run: unknown keys,
+ranges that overlap (in the image, or on one device's table), a range outside the image, a missing serial device,
+a baud rate the serial driver cannot set, an age limit a serial line shared by several units cannot meet
+(`_check_lines`).  `device_specs()` turns the checked devices into the runtime's `--io-device` arguments.
 """
 from __future__ import annotations
 
