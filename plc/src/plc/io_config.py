@@ -459,8 +459,8 @@ def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
 
 
 # On a line shared by several units the runtime (io_modbus.c) declares a unit lost once its inputs are older than
-# max_age_ms less this margin in time-outs: a failed transaction in flight (2) and the write of the program's
-# reaction to a neighbour (1); it takes one task period off too.  Between two polls of a unit at worst every other
+# max_age_ms less this margin in time-outs: a failed transaction in flight (2), then the reacting scan and the
+# write to a neighbour (1: a task period and a frame time).  Between two polls of a unit at worst every other
 # unit fails once (2 time-outs each) and its own read and write take 2: the unit's worst gap.
 LINE_MARGIN_TIMEOUTS = 3
 

@@ -36,8 +36,9 @@
  *   - a unit of a shared line is declared lost once its inputs are older than
  *     max age - line margin, the margin being what can still pass before the
  *     neighbours have the reaction: a failed transaction in flight (2
- *     time-outs), one scan, their write (1 time-out).  So comm loss -> the
- *     program's next outputs at every answering unit of the line <= max age.
+ *     time-outs), then the reacting scan and their write (1 time-out: a
+ *     task period and a frame time).  So comm loss -> the program's next
+ *     outputs at every answering unit of the line <= max age.
  *     `plc run` refuses a max age below the line's worst case (io_config.py).
  *
  * Both sides hold the device mutex only to copy a few words.  A connection
@@ -925,21 +926,26 @@ static void modbus_close_layer(void *state)
     free(io);
 }
 
-/* The age at which a device counts as lost.  On a shared line it is the max age less the line margin: a failed
- * transaction in flight (2 time-outs), one scan and the write to a neighbour (1 time-out) can still pass before
- * the neighbours have the program's reaction to the loss.  Without age= there, the max age is the line's worst
+/* The age at which a device counts as lost.  On a shared line it is the max age less the line margin (the same
+ * as io_config.py's LINE_MARGIN_TIMEOUTS): a failed transaction in flight (2 time-outs), then the reacting scan
+ * and the write to a neighbour (1 time-out, which holds a task period and a frame time; a warning says when the
+ * task period is longer) can still pass before the neighbours have the program's reaction to the loss.  Without age= there, the max age is the line's worst
  * case between two polls of a unit (every other unit failing once: 2 time-outs each, its own read and write
  * 2 more, the line's poll period) plus that margin. */
 static void set_loss_limit(io_device_t *d)
 {
     const io_device_t *L = d->leader;
     const unsigned period_ms = (unsigned)((d->rt->period_ns + 999999u) / 1000000u);
-    const unsigned margin = 3 * d->timeout_ms + period_ms;
+    const unsigned margin = 3 * d->timeout_ms;
     const unsigned worst_gap = L->line_poll_ms + 2 * d->timeout_ms * L->n_members;
 
     d->loss_ms = d->age_ms;
     if (L->n_members < 2)
         return;
+    if (period_ms >= d->timeout_ms)
+        log_msg(d->rt->log, LOG_WARN, "I/O device %u (%s): the task period (%u ms) is not shorter than the response "
+                "time-out (%u ms): after a loss on serial line %s the program's reaction can reach the other units "
+                "later than max age", d->index + 1, d->name, period_ms, d->timeout_ms, d->path);
     if (!d->age_given)
         d->age_ms = worst_gap + margin;
     d->loss_ms = d->age_ms > margin ? d->age_ms - margin : 1;
