@@ -120,7 +120,41 @@ def test_bad_devices_are_rejected_with_their_position(tmp_path, text, expected):
 def test_every_problem_is_reported_at_once(tmp_path):
     message = error_of(tmp_path, HEAD + '[[io.device]]\ntcp = "x"\nbaud = 9600\ncolour = 1\n'
                                         'coils = [{ address = 0, count = 1, from = "%QX0.0" }]\n')
-    assert message.count(": error: ") == 3 and message.startswith("3 problem(s) in the [[io.device]] tables:"), message
+    assert message.count(": error: ") == 3 and message.startswith("3 problem(s) in the run configuration"), message
+
+
+def test_mistakes_of_every_kind_are_reported_in_one_run_with_their_lines(tmp_path):
+    """Issue 37: an unknown key no longer hides an overlap found across devices, nor a mistake in another table,
+    nor a serial line whose age limit cannot hold; each is reported at its own line, in file order."""
+    text = (HEAD                                                                     # lines 1-3
+            + '[modbus]\nport = 99999\n\n'                                            # 4-6: a bad value
+            + '[[io.device]]\ntcp = "10.0.0.2"\ncolour = "red"\n'                      # 7-9: an unknown key
+            + 'discrete_inputs = [{ address = 0, count = 16, to = "%IX0.0" }]\n\n'    # 10
+            + '[[io.device]]\ntcp = "10.0.0.3"\n'                                     # 12-13
+            + 'discrete_inputs = [{ address = 0, count = 8, to = "%IX1.0" }]\n\n'     # 14: overlaps line 10
+            + '[[io.device]]\nrtu = "/dev/null"\nunit = 3\ntimeout_ms = 80\nmax_age_ms = 500\n'   # 16-20
+            + 'coils = [{ address = 0, count = 8, from = "%QX2.0" }]\n\n'             # 21
+            + '[[io.device]]\nrtu = "/dev/null"\nunit = 9\ntimeout_ms = 80\nmax_age_ms = 500\n'   # 23-27
+            + 'discrete_inputs = [{ address = 0, count = 8, to = "%IX4.0" }]\n')       # 28
+    message = error_of(tmp_path, text)
+    path = str(tmp_path / "run.toml")
+    found = [line.split(": error: ")[0].rsplit(":", 1)[0] for line in message.splitlines()[1:]]
+    assert found == [f"{path}:{n}" for n in (5, 9, 14, 20, 27)], message
+    assert message.startswith("5 problem(s) in the run configuration"), message
+    assert "[modbus] port: expected an integer 0..65535, got 99999" in message
+    assert "unknown key 'colour'" in message
+    assert "[[io.device]] 2: discrete_inputs %IX1.0..%IX1.7 overlaps discrete_inputs of device 1" in message
+    assert "max_age_ms 500 cannot hold on serial line /dev/null shared by 2 units" in message
+    assert "give max_age_ms >= 570" in message     # poll 10 + 2 time-outs x 2 units, + the margin 3 x 80
+
+
+def test_a_shared_serial_line_without_max_age_gets_its_worst_case(tmp_path):
+    cfg = load(tmp_path, HEAD + '[[io.device]]\nrtu = "/dev/null"\nunit = 3\npoll_ms = 5\ntimeout_ms = 80\n'
+                              'coils = [{ address = 0, count = 8, from = "%QX2.0" }]\n\n'
+                              '[[io.device]]\nrtu = "/dev/null"\nunit = 9\npoll_ms = 10\ntimeout_ms = 80\n'
+                              'discrete_inputs = [{ address = 0, count = 8, to = "%IX4.0" }]\n')
+    # line poll 5 ms + 2 time-outs for each of the 2 units, + the 3 time-outs of the line margin
+    assert all(" age=565 " in spec for spec in cfg.io_devices), cfg.io_devices
 
 
 def test_layer_modbus_needs_devices(tmp_path):

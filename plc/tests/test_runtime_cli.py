@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -170,7 +171,10 @@ def test_bad_configs_are_rejected_with_the_place_and_the_reason(tmp_path, text, 
     cfg_file.write_text(text)
     with pytest.raises(runtime.ConfigError) as e:
         runtime.load_config(cfg_file)
-    assert str(e.value).startswith(str(cfg_file) + ": ") and message in str(e.value)
+    # one problem, said with its position (file:line:col: error:)
+    assert len(e.value.problems) == 1 and re.match(re.escape(str(cfg_file)) + r":\d+:\d+: error: ",
+                                                   e.value.problems[0]), str(e.value)
+    assert message in str(e.value)
 
 
 def test_the_shipped_config_pins_nothing_and_its_cpu_example_is_valid(tmp_path):
@@ -230,7 +234,8 @@ def test_plc_run_rejects_a_bad_config_before_anything_runs(tmp_path):
                              "--build-dir", str(build_dir)], capture_output=True, text=True, cwd=PLC_ROOT,
                             timeout=60)
     assert result.returncode == 1
-    assert result.stderr == f"plc run: error: {cfg_file}: [modbus] port: expected an integer 0..65535, got 99999\n"
+    assert result.stderr == (f"plc run: error: 1 problem(s) in the run configuration {cfg_file}:\n"
+                             f"{cfg_file}:2:1: error: [modbus] port: expected an integer 0..65535, got 99999\n")
     assert not build_dir.exists()
 
 

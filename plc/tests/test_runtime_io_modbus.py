@@ -223,6 +223,7 @@ def m6_seconds(out: str) -> float:
 RIG_LINK = {"host_timeout_ms": 30000, "plc_timeout_ms": 15000}
 RIG_MACHINE = {"home_timeout_ms": 120000, "pocket_timeout_ms": 60000}
 AGE_LIMIT_MS = int(min(2000 * SLOW, 10000))
+RESPONSE_TIMEOUT_MS = int(min(250 * SLOW, 1000))
 
 
 def project(machine: str, tmp: Path) -> Path:
@@ -254,7 +255,8 @@ class Rig:
             self.serial.close()
 
 
-def make_rig(tmp: Path, transport: str, machine_name: str, units: tuple[int, ...] = (1,)) -> Rig:
+def make_rig(tmp: Path, transport: str, machine_name: str, units: tuple[int, ...] = (1,),
+             max_age_ms: int = AGE_LIMIT_MS) -> Rig:
     """The module and `plc run --io modbus`; with several units (RTU), the inputs come from the first unit and
     the outputs go to the second, two devices on one line."""
     root = project(machine_name, tmp)
@@ -272,8 +274,8 @@ def make_rig(tmp: Path, transport: str, machine_name: str, units: tuple[int, ...
         link = {"tcp": "127.0.0.1", "port": module.port}
     # The age limit and the response time-out are far above any stall of a loaded test machine (the module is
     # Python, at normal priority), so a verdict does not depend on speed (see RIG_MACHINE).
-    common = {**link, "poll_ms": 5, "timeout_ms": int(min(250 * SLOW, 1000)),
-              "max_age_ms": AGE_LIMIT_MS, "backoff_ms": [50, 400]}
+    common = {**link, "poll_ms": 5, "timeout_ms": RESPONSE_TIMEOUT_MS,
+              "max_age_ms": max_age_ms, "backoff_ms": [50, 400]}
     if len(units) == 1:
         devices = [{"name": "changer", **common, "unit": units[0], "status_input": status_input(1),
                     "discrete_inputs": INPUT_RANGE, "coils": OUTPUT_RANGE}]
@@ -329,6 +331,51 @@ def test_two_units_on_one_serial_line_complete_a_change(tmp_path):
             both = client.read_input_registers(IO_DIAG, 16)
         assert both[DIAG_STATE] == STATE_OK and both[8 + DIAG_STATE] == STATE_OK, both
         assert rig.module.machine.crashes == []
+    finally:
+        rig.close()
+
+
+def test_a_silent_unit_does_not_hold_back_the_safe_outputs_of_its_line_neighbour(tmp_path):
+    """Issue 37: on one RS-485 line the sensors board (unit 9) falls silent mid-turn; the motor-off of the
+    program's reaction must reach the actuators board (unit 3) within max_age_ms of the silence, although each try
+    of unit 9 holds the line for a response time-out and the drain after it.  Speed-independent: the time-outs
+    and the age limit scale together (ATC_TIMEOUT_SCALE); the slack left is one time-out of the line margin.  The
+    age limit is an odd number of time-outs, so a loss declared at the limit falls inside a try of unit 9 (each
+    2 time-outs long), as in the issue (the line carried on with it: motor-off about a time-out late)."""
+    sensors, actuators = 9, 3
+    limit_ms = AGE_LIMIT_MS + RESPONSE_TIMEOUT_MS
+    rig = make_rig(tmp_path, "rtu", "default", units=(sensors, actuators), max_age_ms=limit_ms)
+    try:
+        ok(rig.plc.host("clear", "T1 M6"), rig.plc)
+        result: dict = {}
+        host = threading.Thread(target=lambda: result.update(r=rig.plc.host("T5 M6")))
+        host.start()
+        wait_for(lambda: rig.module.coil("motor_on"), 60 * SLOW, "the carousel turning at the module")
+        silent_at = rig.module.set_mode("silent", units=(sensors,))
+        host.join(120 * SLOW)
+        r = result["r"]
+        assert r.returncode == 1 and "toolchanger error -111" in r.stdout, r.stdout + r.stderr
+        m = re.search(r"I/O device 1 \(sensors\): lost: .* outputs safe at monotonic ([0-9.]+) s", rig.plc.text())
+        assert m, rig.plc.text()[-3000:]
+        declared_at = float(m.group(1))
+        motor = rig.module.machine.wiring.motor_on
+
+        def offs() -> list[float]:
+            return [e[0] for e in list(rig.module.events) if e[0] > silent_at and e[1] == "coils" and not e[2][motor]]
+        # the host hears of the fault from the PLC's server at once; the motor-off travels on the serial line
+        wait_for(offs, 30 * SLOW, f"the motor-off at unit {actuators}")
+        off_at = offs()[0]
+        assert silent_at <= declared_at <= off_at, (silent_at, declared_at, off_at)
+        assert off_at - silent_at <= limit_ms / 1000, (
+            f"motor-off at unit {actuators} {1000 * (off_at - silent_at):.0f} ms after unit {sensors} fell silent, "
+            f"limit {limit_ms} ms")
+        # the neighbour kept its poll rate: never taken for lost while unit 9 held the line with its time-outs
+        assert rig.plc.read("IoModule1Lost", "IoModule2Lost") == {"IoModule1Lost": True, "IoModule2Lost": False}
+        assert "I/O device 2 (actuators): lost" not in rig.plc.text()
+        print(f"unit {sensors} silent -> declared lost {1000 * (declared_at - silent_at):.0f} ms -> motor-off at "
+              f"unit {actuators} {1000 * (off_at - declared_at):.0f} ms later: {1000 * (off_at - silent_at):.0f} ms "
+              f"after the silence, max_age_ms {limit_ms} (response time-out {RESPONSE_TIMEOUT_MS} ms)")
+        rig.module.set_mode("normal")
     finally:
         rig.close()
 

@@ -24,9 +24,10 @@ image::
     holding_registers_read = [{ address = 0, count = 2, to = "%IW2" }]       # FC3
     holding_registers_write = [{ address = 8, count = 2, from = "%QW0", safe = 0 }]   # FC16
 
-Every problem is reported with `file:line:col` before anything starts: unknown keys, ranges that overlap (in the
-image, or on one device's table), a range outside the image, a missing serial device, a baud rate the serial
-driver cannot set.  `device_specs()` turns the checked devices into the runtime's `--io-device` arguments.
+Every problem is reported with `file:line:col` before anything starts, all of them in one run: unknown keys,
+ranges that overlap (in the image, or on one device's table), a range outside the image, a missing serial device,
+a baud rate the serial driver cannot set, an age limit a serial line shared by several units cannot meet
+(`_check_lines`).  `device_specs()` turns the checked devices into the runtime's `--io-device` arguments.
 """
 from __future__ import annotations
 
@@ -154,6 +155,7 @@ class IoRange:
     count: int
     image: int                       # first bit index (8*byte + bit) or word
     safe: list[int] = field(default_factory=list)
+    nth: int = 0                     # its place in the device's list of this kind (for its position)
 
     def spec(self) -> str:
         text = f"{self.kind.spec}={self.address}:{self.count}:{self.image}"
@@ -180,6 +182,7 @@ class IoDevice:
     backoff_ms: tuple[int, int] = (100, 2000)
     status_input: int | None = None  # bit index
     ranges: list[IoRange] = field(default_factory=list)
+    bad: set[str] = field(default_factory=set)   # keys found wrong (later checks leave them out)
 
     def spec(self) -> str:
         """The runtime's --io-device argument."""
@@ -219,17 +222,27 @@ def bit_name(prefix: str, bit: int) -> str:
     return f"{prefix}{bit // 8}.{bit % 8}"
 
 
-class _Checker:
+class Checker:
+    """Collects problems of one TOML file, each positioned at its key (or the nearest enclosing one)."""
+
     def __init__(self, path: Path, text: str) -> None:
         self.path = path
         self.pos = locate(text)
         self.problems: list[str] = []
+        self.keys: list[Path_] = []          # the key of each problem
+        self.places: list[tuple[int, int]] = []  # the line and column of each problem
+
+    def in_file_order(self) -> list[str]:
+        """The problems by line and column (the order they are found in is the checks')."""
+        return [p for _, p in sorted(zip(self.places, self.problems), key=lambda t: t[0])]
 
     def error(self, key: Path_, message: str) -> None:
+        self.keys.append(key)
         k = key
         while k and k not in self.pos:
             k = k[:-1]
         line, col = self.pos.get(k, (1, 1))
+        self.places.append((line, col))
         self.problems.append(f"{self.path}:{line}:{col}: error: {message}")
 
     def integer(self, key: Path_, where: str, value: Any, lo: int, hi: int) -> int | None:
@@ -239,26 +252,29 @@ class _Checker:
         return value
 
 
-def check_devices(path: Path, text: str, entries: Any) -> tuple[list[IoDevice], list[str]]:
-    """Check the `[[io.device]]` entries of a run configuration; return the devices and the problems."""
-    ck = _Checker(Path(path), text)
+def check_devices(path: Path, text: str, entries: Any, ck: Checker | None = None) -> tuple[list[IoDevice], list[str]]:
+    """Check the `[[io.device]]` entries of a run configuration; return the devices and the problems (of these
+    tables; recorded in `ck` too when the caller checks the rest of the file with it)."""
+    ck = ck or Checker(Path(path), text)
+    before = len(ck.problems)
     devices: list[IoDevice] = []
     base: Path_ = ("io", "device")
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
         ck.error(base, "io.device: write each device as a [[io.device]] table")
-        return [], ck.problems
+        return [], ck.problems[before:]
     if len(entries) > MAX_DEVICES:
         ck.error(base + (MAX_DEVICES,), f"at most {MAX_DEVICES} I/O devices")
     for n, entry in enumerate(entries[:MAX_DEVICES]):
-        dev = _check_device(ck, base + (n,), n + 1, entry)
-        if dev is not None:
-            devices.append(dev)
-    if not ck.problems:
-        _check_overlaps(ck, devices)
-    return devices, ck.problems
+        devices.append(_check_device(ck, base + (n,), n + 1, entry))
+    # the checks across devices run whatever else was found: every mistake is reported in one run (a value found
+    # wrong is left out of them, so it is reported once, where it is written)
+    _check_overlaps(ck, devices)
+    _check_lines(ck, devices)
+    return devices, ck.problems[before:]
 
 
-def _check_device(ck: _Checker, key: Path_, index: int, e: dict) -> IoDevice | None:
+def _check_device(ck: Checker, key: Path_, index: int, e: dict) -> IoDevice:
+    """The device as far as its values are right (the keys found wrong in `bad`)."""
     where = f"[[io.device]] {index}"
     before = len(ck.problems)
     for k in e:
@@ -339,10 +355,11 @@ def _check_device(ck: _Checker, key: Path_, index: int, e: dict) -> IoDevice | N
             _check_ranges(ck, key + (kind.key,), where, kind, e[kind.key], dev)
     if not any(kind.key in e for kind in KINDS):
         ck.error(key, f"{where}: no ranges: give at least one of {', '.join(k.key for k in KINDS)}")
-    return dev if len(ck.problems) == before else None
+    dev.bad = {k[len(key)] for k in ck.keys[before:] if len(k) > len(key) and k[:len(key)] == key}
+    return dev
 
 
-def _check_ranges(ck: _Checker, key: Path_, where: str, kind: RangeKind, value: Any, dev: IoDevice) -> None:
+def _check_ranges(ck: Checker, key: Path_, where: str, kind: RangeKind, value: Any, dev: IoDevice) -> None:
     if isinstance(value, dict):
         value = [value]
     if not isinstance(value, list):
@@ -397,10 +414,10 @@ def _check_ranges(ck: _Checker, key: Path_, where: str, kind: RangeKind, value: 
                 ck.error(rk, f"{w}: safe: one value or {count} values ({what})")
                 continue
             safe = [int(v) & 0xFFFF for v in (items * count if len(items) == 1 else items)]
-        dev.ranges.append(IoRange(kind, address, count, image, safe))
+        dev.ranges.append(IoRange(kind, address, count, image, safe, nth=i))
 
 
-def _check_overlaps(ck: _Checker, devices: list[IoDevice]) -> None:
+def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
     """Two ranges writing one part of the image, two ranges on one table of one device, a status input inside
     an input range; devices sharing a serial line with different line settings or the same unit."""
     def area(r: IoRange) -> str:
@@ -415,13 +432,13 @@ def _check_overlaps(ck: _Checker, devices: list[IoDevice]) -> None:
         for i, r in enumerate(d.ranges):
             for od, oi, o in placed:
                 if area(o) == area(r) and r.image < o.image + o.count and o.image < r.image + r.count:
-                    ck.error(("io", "device", d.index - 1, r.kind.key, _nth(d, i)),
+                    ck.error(("io", "device", d.index - 1, r.kind.key, r.nth),
                              f"[[io.device]] {d.index}: {r.kind.key} {show(r, r.image, r.image + r.count - 1)} "
                              f"overlaps {o.kind.key} of device {od.index} "
                              f"({show(o, o.image, o.image + o.count - 1)})")
                 if (od is d and o.kind.table == r.kind.table and o.kind.output == r.kind.output
                         and r.address < o.address + o.count and o.address < r.address + r.count):
-                    ck.error(("io", "device", d.index - 1, r.kind.key, _nth(d, i)),
+                    ck.error(("io", "device", d.index - 1, r.kind.key, r.nth),
                              f"[[io.device]] {d.index}: {r.kind.key} addresses {r.address}..{r.address + r.count - 1}"
                              f" overlap {o.kind.key} {o.address}..{o.address + o.count - 1} on the same device")
             placed.append((d, i, r))
@@ -439,30 +456,56 @@ def _check_overlaps(ck: _Checker, devices: list[IoDevice]) -> None:
                      f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} is already the "
                      f"status input of device {status[d.status_input]}")
         status[d.status_input] = d.index
-    lines: dict[str, IoDevice] = {}
+
+
+# On a line shared by several units the runtime (io_modbus.c) declares a unit lost once its inputs are older than
+# max_age_ms less this margin in time-outs: a failed transaction in flight (2), then the reacting scan and the
+# write to a neighbour (1: a task period and a frame time).  Between two polls of a unit at worst every other
+# unit fails once (2 time-outs each) and its own read and write take 2: the unit's worst gap.
+LINE_MARGIN_TIMEOUTS = 3
+
+
+def line_worst_gap_ms(poll_ms: int, timeout_ms: int, units: int) -> int:
+    """The longest time between two polls of one unit of a serial line of `units` units."""
+    return poll_ms + 2 * timeout_ms * units
+
+
+def _check_lines(ck: Checker, devices: list[IoDevice]) -> None:
+    """Devices sharing a serial line: the same line settings, distinct units, and an age limit the line's worst
+    case can meet (comm loss -> the program's reaction at every answering unit of the line <= max_age_ms)."""
+    line_keys = {"rtu", "baud", "parity", "data_bits", "stop_bits", "timeout_ms", "unit", "poll_ms", "max_age_ms"}
+    lines: dict[str, list[IoDevice]] = {}
     for d in devices:
-        if d.rtu is None:
+        if d.rtu is not None and not d.bad & line_keys:
+            lines.setdefault(os.path.realpath(d.rtu), []).append(d)
+    for members in lines.values():
+        first = members[0]
+        for n, d in enumerate(members[1:], 1):
+            if (d.baud, d.parity, d.data_bits, d.stop_bits, d.timeout_ms) != \
+                    (first.baud, first.parity, first.data_bits, first.stop_bits, first.timeout_ms):
+                ck.error(("io", "device", d.index - 1, "rtu"),
+                         f"[[io.device]] {d.index}: serial line {d.rtu} is device {first.index}'s: give it the same "
+                         "baud, parity, data_bits, stop_bits and timeout_ms")
+            same_unit = [o.index for o in members[:n] if o.unit == d.unit]
+            if same_unit:
+                ck.error(("io", "device", d.index - 1, "unit"),
+                         f"[[io.device]] {d.index}: unit {d.unit} is already device {same_unit[0]} on serial line "
+                         f"{d.rtu}")
+        if len(members) < 2:
             continue
-        real = os.path.realpath(d.rtu)
-        first = lines.setdefault(real, d)
-        if first is d:
-            continue
-        line = (first.baud, first.parity, first.data_bits, first.stop_bits, first.timeout_ms)
-        if (d.baud, d.parity, d.data_bits, d.stop_bits, d.timeout_ms) != line:
-            ck.error(("io", "device", d.index - 1, "rtu"),
-                     f"[[io.device]] {d.index}: serial line {d.rtu} is device {first.index}'s: give it the same "
-                     "baud, parity, data_bits, stop_bits and timeout_ms")
-        same_unit = [o.index for o in devices[:d.index - 1]
-                     if o.rtu is not None and os.path.realpath(o.rtu) == real and o.unit == d.unit]
-        if same_unit:
-            ck.error(("io", "device", d.index - 1, "unit"),
-                     f"[[io.device]] {d.index}: unit {d.unit} is already device {same_unit[0]} on serial line {d.rtu}")
-
-
-def _nth(dev: IoDevice, i: int) -> int:
-    """Index of dev.ranges[i] within the list of its own kind (for its position)."""
-    kind = dev.ranges[i].kind
-    return sum(1 for r in dev.ranges[:i] if r.kind is kind)
+        poll = min(d.poll_ms for d in members)
+        for d in members:
+            gap = line_worst_gap_ms(poll, d.timeout_ms, len(members))
+            need = gap + LINE_MARGIN_TIMEOUTS * d.timeout_ms
+            if d.max_age_ms is None:
+                d.max_age_ms = need
+            elif d.max_age_ms < need:
+                ck.error(("io", "device", d.index - 1, "max_age_ms"),
+                         f"[[io.device]] {d.index}: max_age_ms {d.max_age_ms} cannot hold on serial line {d.rtu} "
+                         f"shared by {len(members)} units: between two polls of a unit up to {gap} ms can pass "
+                         f"(poll {poll} ms, 2 time-outs of {d.timeout_ms} ms per unit), and after a loss "
+                         f"{LINE_MARGIN_TIMEOUTS} time-outs until the other units have the program's reaction; give "
+                         f"max_age_ms >= {need}, or a shorter timeout_ms")
 
 
 def device_specs(devices: list[IoDevice]) -> list[str]:

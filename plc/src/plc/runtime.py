@@ -51,6 +51,7 @@ import dataclasses
 import hashlib
 import ipaddress
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -89,7 +90,11 @@ class RuntimeBuildError(Exception):
 
 
 class ConfigError(Exception):
-    """The run configuration is invalid; str() says where and why."""
+    """The run configuration is invalid; str() says where and why (`problems`: one positioned line each)."""
+
+    def __init__(self, message: str, problems: Sequence[str] = ()) -> None:
+        super().__init__(message)
+        self.problems = list(problems) or [message]
 
 
 # --------------------------------------------------------------------------- build
@@ -267,113 +272,129 @@ def check_allow(where: str, value: Any) -> str:
 
 
 def load_config(path: Path) -> RunConfig:
-    """Read and check a TOML run configuration; raise ConfigError on any problem."""
+    """Read and check a TOML run configuration; raise ConfigError naming every problem of every table at once,
+    each as `file:line:col: error: message`."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
-        data = tomllib.loads(text)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read: {exc}") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+        at = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
+        line, col = (at.group(1), at.group(2)) if at else ("1", "1")
+        raise ConfigError(f"{path}:{line}:{col}: error: invalid TOML: {exc}") from None
 
+    ck = io_config.Checker(path, text)
     cfg = RunConfig()
+
+    def check(section: str, key: str, fn, *args):
+        """fn(where, value, *args), its ConfigError recorded at the key's position; None on a problem."""
+        try:
+            return fn(f"[{section}] {key}", data[section][key], *args)
+        except ConfigError as exc:
+            ck.error((section, key), str(exc))
+            return None
+
     for section, table in data.items():
         if section not in _KEYS:
-            raise ConfigError(f"{path}: unknown section [{section}] (known: "
-                              + ", ".join(f"[{s}]" for s in _KEYS) + ")")
-        if not isinstance(table, dict):
-            raise ConfigError(f"{path}: '{section}' must be a section [{section}]")
-        for key in table:
-            if key not in _KEYS[section]:
-                raise ConfigError(f"{path}: [{section}] unknown key '{key}' (known: "
-                                  + ", ".join(sorted(_KEYS[section])) + ")")
-
-    def where(section: str, key: str) -> str:
-        return f"{path}: [{section}] {key}"
+            ck.error((section,), f"unknown section [{section}] (known: " + ", ".join(f"[{s}]" for s in _KEYS) + ")")
+        elif not isinstance(table, dict):
+            ck.error((section,), f"'{section}' must be a section [{section}]")
+        else:
+            for key in table:
+                if key not in _KEYS[section]:
+                    ck.error((section, key), f"[{section}] unknown key '{key}' (known: "
+                             + ", ".join(sorted(_KEYS[section])) + ")")
+    tables = {s: t for s, t in data.items() if s in _KEYS and isinstance(t, dict)}
+    data = tables
 
     modbus = data.get("modbus", {})
-    if "bind" in modbus:
-        cfg.bind = check_bind(where("modbus", "bind"), modbus["bind"])
-    if "port" in modbus:
-        cfg.port = _check_int(where("modbus", "port"), modbus["port"], 0, 65535)
-    if "max_clients" in modbus:
-        cfg.max_clients = _check_int(where("modbus", "max_clients"), modbus["max_clients"], 1, 256)
-    if "frame_timeout_ms" in modbus:
-        cfg.frame_timeout_ms = _check_int(where("modbus", "frame_timeout_ms"), modbus["frame_timeout_ms"], 1,
-                                          3600000)
-    if "read_only" in modbus:
-        cfg.read_only = _check_bool(where("modbus", "read_only"), modbus["read_only"])
-    if "allow" in modbus:
-        allow = modbus["allow"]
-        if isinstance(allow, str):
-            allow = [allow]
-        if not isinstance(allow, list):
-            raise ConfigError(f"{where('modbus', 'allow')}: expected a list of addresses")
-        if len(allow) > 32:
-            raise ConfigError(f"{where('modbus', 'allow')}: at most 32 entries")
-        cfg.allow = [check_allow(where("modbus", "allow"), a) for a in allow]
-    if "writable_coils" in modbus:
-        cfg.writable_coils = _check_ranges(where("modbus", "writable_coils"), modbus["writable_coils"], COILS)
-    if "writable_registers" in modbus:
-        cfg.writable_registers = _check_ranges(where("modbus", "writable_registers"),
-                                               modbus["writable_registers"], HOLDING_REGISTERS)
+    for key, fn, args in (("bind", check_bind, ()), ("port", _check_int, (0, 65535)),
+                          ("max_clients", _check_int, (1, 256)), ("frame_timeout_ms", _check_int, (1, 3600000)),
+                          ("read_only", _check_bool, ()), ("allow", _check_allow_list, ()),
+                          ("writable_coils", _check_ranges, (COILS,)),
+                          ("writable_registers", _check_ranges, (HOLDING_REGISTERS,))):
+        if key in modbus:
+            value = check("modbus", key, fn, *args)
+            if value is not None:
+                setattr(cfg, key, value)
 
     io = data.get("io", {})
     if "layer" in io:
-        if io["layer"] not in IO_LAYERS:
-            raise ConfigError(f"{where('io', 'layer')}: expected one of "
-                              + ", ".join(f'"{n}"' for n in IO_LAYERS) + f", got {io['layer']!r}")
-        cfg.io = io["layer"]
+        cfg.io = check("io", "layer", _check_layer) or cfg.io
     if "device" in io:
-        devices, problems = io_config.check_devices(path, text, io["device"])
-        if problems:
-            raise ConfigError(f"{len(problems)} problem(s) in the [[io.device]] tables:\n" + "\n".join(problems))
-        cfg.io_devices = io_config.device_specs(devices)
-    if cfg.io == "modbus" and not cfg.io_devices:
-        raise ConfigError(f"{where('io', 'layer')}: layer \"modbus\" needs at least one [[io.device]]")
+        devices, problems = io_config.check_devices(path, text, io["device"], ck)
+        if not problems:
+            cfg.io_devices = io_config.device_specs(devices)
+    if cfg.io == "modbus" and "device" not in io:
+        ck.error(("io", "layer"), "[io] layer: layer \"modbus\" needs at least one [[io.device]]")
 
     retain = data.get("retain", {})
     if "file" in retain:
-        if not isinstance(retain["file"], str) or not retain["file"]:
-            raise ConfigError(f"{where('retain', 'file')}: expected a file name")
-        cfg.retain_file = (path.parent / retain["file"]) if not Path(retain["file"]).is_absolute() \
-            else Path(retain["file"])
+        name = check("retain", "file", _check_file_name)
+        if name is not None:
+            cfg.retain_file = name if name.is_absolute() else path.parent / name
     if "interval_ms" in retain:
-        cfg.retain_interval_ms = _check_int(where("retain", "interval_ms"), retain["interval_ms"], 0, 3600000)
+        value = check("retain", "interval_ms", _check_int, 0, 3600000)
+        cfg.retain_interval_ms = cfg.retain_interval_ms if value is None else value
     if "registers" in retain:
-        cfg.retain_registers = _check_ranges(where("retain", "registers"), retain["registers"],
-                                             HOLDING_REGISTERS)
+        cfg.retain_registers = check("retain", "registers", _check_ranges, HOLDING_REGISTERS) or []
 
     scan = data.get("scan", {})
-    if "realtime" in scan:
-        cfg.realtime = _check_bool(where("scan", "realtime"), scan["realtime"])
-    if "rt_priority" in scan:
-        cfg.rt_priority = _check_int(where("scan", "rt_priority"), scan["rt_priority"], 1, 99)
-    if "cpu" in scan:       # the machine that runs it may not be this one: the runtime checks it is online
-        cfg.cpu = _check_int(where("scan", "cpu"), scan["cpu"], 0, MAX_CPU)
-    if "cpu_latency_us" in scan:
-        cfg.cpu_latency_us = _check_int(where("scan", "cpu_latency_us"), scan["cpu_latency_us"], 0, 2000000000)
-    if "status_interval_s" in scan:
-        value = scan["status_interval_s"]
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
-            raise ConfigError(f"{where('scan', 'status_interval_s')}: expected a number of seconds >= 0.1")
-        cfg.status_interval_s = float(value)
-    if "watchdog_ms" in scan:
-        cfg.watchdog_ms = _check_int(where("scan", "watchdog_ms"), scan["watchdog_ms"], 0, 3600000)
+    for key, fn, args in (("realtime", _check_bool, ()), ("rt_priority", _check_int, (1, 99)),
+                          # the machine that runs it may not be this one: the runtime checks the CPU is online
+                          ("cpu", _check_int, (0, MAX_CPU)), ("cpu_latency_us", _check_int, (0, 2000000000)),
+                          ("status_interval_s", _check_seconds, ()), ("watchdog_ms", _check_int, (0, 3600000))):
+        if key in scan:
+            value = check("scan", key, fn, *args)
+            if value is not None:
+                setattr(cfg, key, value)
 
     monitor = data.get("monitor", {})
     if "enabled" in monitor:
-        cfg.monitor = _check_bool(where("monitor", "enabled"), monitor["enabled"])
+        value = check("monitor", "enabled", _check_bool)
+        cfg.monitor = cfg.monitor if value is None else value
     for key, attr in (("socket", "monitor_socket"), ("token_file", "token_file"), ("audit_file", "audit_file")):
         if key in monitor:
-            if not isinstance(monitor[key], str) or not monitor[key]:
-                raise ConfigError(f"{where('monitor', key)}: expected a file name")
-            value = Path(monitor[key])
-            setattr(cfg, attr, value if value.is_absolute() else path.parent / value)
+            value = check("monitor", key, _check_file_name)
+            if value is not None:
+                setattr(cfg, attr, value if value.is_absolute() else path.parent / value)
+    if ck.problems:
+        raise ConfigError(f"{len(ck.problems)} problem(s) in the run configuration {path}:\n"
+                          + "\n".join(ck.in_file_order()), ck.in_file_order())
     return cfg
+
+
+def _check_layer(where: str, value: Any) -> str:
+    if value not in IO_LAYERS:
+        raise ConfigError(f"{where}: expected one of " + ", ".join(f'"{n}"' for n in IO_LAYERS) + f", got {value!r}")
+    return value
+
+
+def _check_file_name(where: str, value: Any) -> Path:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{where}: expected a file name")
+    return Path(value)
+
+
+def _check_seconds(where: str, value: Any) -> float:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
+        raise ConfigError(f"{where}: expected a number of seconds >= 0.1")
+    return float(value)
+
+
+def _check_allow_list(where: str, value: Any) -> list[str]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list):
+        raise ConfigError(f"{where}: expected a list of addresses")
+    if len(value) > 32:
+        raise ConfigError(f"{where}: at most 32 entries")
+    return [check_allow(where, a) for a in value]
 
 
 def ensure_token(path: Path) -> None:

@@ -5,7 +5,8 @@ arm, collet coils) and drives the sensors (home, pocket, code, arm, collet discr
 model with its own timing -- not the ST plant models of st_src/.  The model is evaluated when a request arrives,
 from the monotonic clock, so sensor edges fall where the mechanics put them whatever the poll rate.
 
-Faults to inject (`module.mode`): "normal", "silent" (requests are dropped: the module stops answering),
+Faults to inject (`module.mode`): "normal", "silent" (requests are dropped: the module stops answering; only
+those of some units with `set_mode("silent", units=...)`, one board of an RS-485 line falling silent),
 "slow" (each answer waits `slow_s`), "exception" (every request answered with exception 02), "garbage" (every
 answer corrupted on the wire).  `events` records what the module saw, stamped with time.monotonic() (the
 runtime logs CLOCK_MONOTONIC too, so both can be compared).
@@ -203,6 +204,7 @@ class IoModule:
         self.serial, self.baud, self.units = serial, baud, units
         self.mode = "normal"
         self.slow_s = 0.0
+        self.silent_units: tuple[int, ...] | None = None     # "silent": None = every unit
         self.lock = threading.Lock()
         self.events: list[tuple[float, str, object]] = []
         self.answered = 0.0          # monotonic time of the last request answered
@@ -220,7 +222,7 @@ class IoModule:
 
     # pymodbus hooks: drop requests ("silent"), corrupt answers ("garbage")
     def _trace_pdu(self, sending: bool, pdu):
-        if not sending and self.mode == "silent":
+        if not sending and self.mode == "silent" and (self.silent_units is None or pdu.dev_id in self.silent_units):
             with self.lock:
                 self.dropped += 1
                 if self.dropped_since is None:
@@ -236,10 +238,11 @@ class IoModule:
             return bytes(b)
         return data
 
-    def set_mode(self, mode: str, slow_s: float = 0.0) -> float:
-        """Change the fault mode; return the monotonic time of the change."""
+    def set_mode(self, mode: str, slow_s: float = 0.0, units: tuple[int, ...] | None = None) -> float:
+        """Change the fault mode (`units`: the units it applies to, "silent" only; None: all); return the
+        monotonic time of the change."""
         with self.lock:
-            self.mode, self.slow_s = mode, slow_s
+            self.mode, self.slow_s, self.silent_units = mode, slow_s, units
             if mode != "silent":
                 self.dropped_since = None
             now = time.monotonic()

@@ -21,6 +21,26 @@
  *     age and declares it lost then -- safe values handed over, state and log
  *     line -- instead of at the next scan start, up to one task period later.
  *
+ * A serial line shared by several units (RS-485 multi-drop) is one poll
+ * thread, one transaction at a time, so a unit that does not answer holds the
+ * line for a response time-out and the drain after it (2 time-outs) per try.
+ * Its neighbours must still get their outputs, the program's reaction to the
+ * loss above all, within the max age:
+ *   - outputs handed over are written between any two transactions, to the
+ *     units that answer (never to a silent one: its safe values go out when it
+ *     answers again, before its inputs count as fresh);
+ *   - a unit that did not answer is tried with one read per cycle, no write;
+ *     once lost, it is probed only after its back-off (first wait doubling up
+ *     to the maximum), never right after the loss: the outputs of the
+ *     program's reaction go out first, and the others keep their poll rate;
+ *   - a unit of a shared line is declared lost once its inputs are older than
+ *     max age - line margin, the margin being what can still pass before the
+ *     neighbours have the reaction: a failed transaction in flight (2
+ *     time-outs), then the reacting scan and their write (1 time-out: a
+ *     task period and a frame time).  So comm loss -> the program's next
+ *     outputs at every answering unit of the line <= max age.
+ *     `plc run` refuses a max age below the line's worst case (io_config.py).
+ *
  * Both sides hold the device mutex only to copy a few words.  A connection
  * that fails is reopened with a back-off (first period doubling up to the
  * maximum); a log line is written per state change, never per retry.
@@ -91,6 +111,8 @@ typedef struct io_device {
     char parity;
     int unit;
     unsigned poll_ms, timeout_ms, age_ms, backoff_min_ms, backoff_max_ms;
+    bool age_given;          /* age= was given (else 2 polls + time-out, or the shared line's worst case) */
+    unsigned loss_ms;        /* inputs older than this: lost (age_ms, less the line margin on a shared line) */
     int status_bit;          /* -1: none */
     io_range_t ranges[MAX_RANGES];
     unsigned n_ranges, n_in, n_out;
@@ -100,6 +122,7 @@ typedef struct io_device {
     struct io_device *leader;    /* first device of this line (itself for TCP and a line's first) */
     struct io_device *next_member;   /* next device on the leader's line */
     unsigned line_poll_ms;   /* leader: the shortest poll period of its line */
+    unsigned n_members;      /* leader: devices on its line (1: a TCP device or a serial line of its own) */
     _Atomic uint32_t line_seq;   /* leader: bumped when any device of the line gets new outputs */
     pthread_t thread;        /* leader only: polls every device of its line in turn */
     bool thread_started;
@@ -118,6 +141,9 @@ typedef struct io_device {
     bool link_up;            /* a complete cycle since the last connect; "link up" logged */
     bool announced;          /* a link state has been logged */
     bool outputs_ok;         /* the last output write succeeded (inputs count as fresh only then) */
+    bool answering;          /* shared line: its last transaction was answered (else: not written to) */
+    bool lost_seen;          /* shared line: the poll thread has seen it lost (probing with back-off) */
+    uint64_t probe_at, probe_wait;   /* shared line, lost and silent: next probe, the back-off after it */
     uint16_t *in_work, *out_work;
     uint8_t bits[MODBUS_MAX_READ_BITS];
     uint32_t good;
@@ -281,6 +307,7 @@ static int parse_device(io_device_t *d, const char *spec, char *err, size_t errl
             d->timeout_ms = u;
         } else if (strcmp(k, "age") == 0 && parse_uint(v, 1, 600000, &u, NULL)) {
             d->age_ms = u;
+            d->age_given = true;
         } else if (strcmp(k, "status") == 0 && parse_uint(v, 0, MAP_BITS - 1, &u, NULL)) {
             d->status_bit = (int)u;
         } else if (strcmp(k, "backoff") == 0) {
@@ -489,12 +516,49 @@ static void transaction_failed(io_device_t *d, int e, uint64_t now)
     }
 }
 
+static bool on_shared_line(const io_device_t *d)
+{
+    return d->leader->n_members > 1;
+}
+
+/* Shared line: a lost unit that does not answer is probed only when its back-off has passed; the first time the
+ * poll thread sees it lost, the probe is put off by one back-off, so the outputs of the program's reaction to
+ * the loss reach its neighbours before the line is held by it again. */
+static bool probe_due(io_device_t *m, uint64_t now)
+{
+    if (!on_shared_line(m) || m->answering || atomic_load(&m->state) != IO_DEVICE_LOST)
+        return true;
+    if (!m->lost_seen) {
+        m->lost_seen = true;
+        m->probe_wait = (uint64_t)m->backoff_min_ms * 1000000u;
+        m->probe_at = now + m->probe_wait;
+    }
+    return now >= m->probe_at;
+}
+
+/* Shared line: a unit that did not answer gets no more transactions this cycle, a lost one its next probe time;
+ * its outputs count as not delivered, so when it answers again its inputs become fresh only after the outputs
+ * last handed over (safe ones, when it was lost) have been written. */
+static void not_answering(io_device_t *m)
+{
+    const uint64_t max = (uint64_t)m->backoff_max_ms * 1000000u;
+
+    m->answering = false;
+    m->outputs_ok = false;
+    if (m->lost_seen) {
+        m->probe_at = now_ns() + m->probe_wait;
+        m->probe_wait = m->probe_wait * 2 > max ? max : m->probe_wait * 2;
+    }
+}
+
 /* One device's cycle on its line: inputs first (stamped when asked for), then its outputs. */
 static void poll_device(io_device_t *L, io_device_t *m, uint64_t *backoff)
 {
     runtime_t *rt = m->rt;
     const uint64_t start = now_ns();
 
+    if (!probe_due(m, start))
+        return;
     modbus_set_slave(m->ctx, m->unit);
     if (read_inputs_now(m, m->in_work) == 0) {
         pthread_mutex_lock(&m->m);
@@ -509,8 +573,14 @@ static void poll_device(io_device_t *L, io_device_t *m, uint64_t *backoff)
             log_msg(rt->log, LOG_INFO, "I/O device %u (%s): link up (%s)", L->index + 1, L->name, L->where);
         L->link_up = true;
         L->announced = true;
+        m->answering = true;
+        m->lost_seen = false;
     } else {
         transaction_failed(m, errno, now_ns());
+        if (on_shared_line(m)) {     /* a write would hold the line for its time-out once more */
+            not_answering(m);
+            return;
+        }
     }
     if (!L->connected)
         return;
@@ -520,14 +590,20 @@ static void poll_device(io_device_t *L, io_device_t *m, uint64_t *backoff)
     m->sent_seq = m->out_seq;
     pthread_mutex_unlock(&m->m);
     m->outputs_ok = write_outputs_now(m, m->out_work) == 0;
-    if (!m->outputs_ok)
+    if (!m->outputs_ok) {
         transaction_failed(m, errno, now_ns());
+        if (on_shared_line(m))
+            not_answering(m);
+    }
 }
 
-/* Outputs handed over since they were last written go out now, device by device. */
+/* Outputs handed over since they were last written go out now, device by device (on a shared line to the units
+ * that answer: a silent one gets its outputs with its next answered read). */
 static void write_changed(io_device_t *L)
 {
     for (io_device_t *m = L; m && L->connected; m = m->next_member) {
+        if (on_shared_line(m) && !m->answering)
+            continue;
         pthread_mutex_lock(&m->m);
         const bool changed = m->out_seq != m->sent_seq;
         if (changed) {
@@ -541,6 +617,8 @@ static void write_changed(io_device_t *L)
         m->outputs_ok = write_outputs_now(m, m->out_work) == 0;
         if (!m->outputs_ok) {
             transaction_failed(m, errno, now_ns());
+            if (on_shared_line(m))
+                not_answering(m);
             publish_diag(m);
         }
     }
@@ -584,14 +662,21 @@ static void *poll_thread(void *arg)
             L->reconnects++;
             for (io_device_t *m = L; m; m = m->next_member) {
                 m->outputs_ok = false;
+                m->answering = true;
+                m->lost_seen = false;
                 m->last_good_ns = now_ns();
             }
             next = now_ns();
         }
 
         seen = atomic_load(&L->line_seq);
-        for (io_device_t *m = L; m && L->connected; m = m->next_member)
+        for (io_device_t *m = L; m && L->connected; m = m->next_member) {
+            if (atomic_load(&L->line_seq) != seen) {    /* handed over during the last transaction: out first */
+                seen = atomic_load(&L->line_seq);
+                write_changed(L);
+            }
             poll_device(L, m, &backoff);
+        }
         for (io_device_t *m = L; m; m = m->next_member)
             publish_diag(m);
 
@@ -641,7 +726,7 @@ static void set_state(io_device_t *d, io_device_state_t s, uint64_t now, uint64_
     if (s == IO_DEVICE_LOST)
         log_msg(d->rt->log, LOG_ERROR, "I/O device %u (%s): lost: no complete input for %.1f ms (limit %u ms); "
                 "status input TRUE, inputs 0, outputs safe at monotonic %.6f s",
-                d->index + 1, d->name, age / 1e6, d->age_ms, now / 1e9);
+                d->index + 1, d->name, age / 1e6, d->loss_ms, now / 1e9);
     else if (s == IO_DEVICE_OK)
         log_msg(d->rt->log, LOG_INFO, "I/O device %u (%s): inputs fresh%s at monotonic %.6f s", d->index + 1,
                 d->name, old == IO_DEVICE_LOST ? " again (the program decides when its outputs return)" : "",
@@ -679,7 +764,7 @@ static uint64_t snap_age(uint64_t now, uint64_t snap)
  * (it judges the same snapshot by the same limit).  Only the OK -> LOST transition is made here. */
 static void declare_lost_if_stale(io_device_t *d, uint64_t now, uint64_t snap)
 {
-    const bool stale = snap != 0 && snap_age(now, snap) > (uint64_t)d->age_ms * 1000000u;
+    const bool stale = snap != 0 && snap_age(now, snap) > (uint64_t)d->loss_ms * 1000000u;
     if (!stale || atomic_load(&d->state) != IO_DEVICE_OK)
         return;
     hand_over(d, d->safe);
@@ -695,7 +780,7 @@ static void *loss_watch(void *arg)
         uint64_t next = now + 1000000000u;
         for (unsigned i = 0; i < io->n; i++) {
             io_device_t *d = &io->dev[i];
-            const uint64_t age = (uint64_t)d->age_ms * 1000000u;
+            const uint64_t age = (uint64_t)d->loss_ms * 1000000u;
             pthread_mutex_lock(&d->m);
             const uint64_t snap = d->snap_ns;
             pthread_mutex_unlock(&d->m);
@@ -728,7 +813,7 @@ static void modbus_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw
 
         pthread_mutex_lock(&d->m);
         snap = d->snap_ns;
-        const bool fresh = snap != 0 && snap_age(now, snap) <= (uint64_t)d->age_ms * 1000000u;
+        const bool fresh = snap != 0 && snap_age(now, snap) <= (uint64_t)d->loss_ms * 1000000u;
         if (fresh)
             memcpy(d->in_scan, d->in_snap, d->n_in * sizeof *d->in_scan);
         pthread_mutex_unlock(&d->m);
@@ -841,6 +926,35 @@ static void modbus_close_layer(void *state)
     free(io);
 }
 
+/* The age at which a device counts as lost.  On a shared line it is the max age less the line margin (the same
+ * as io_config.py's LINE_MARGIN_TIMEOUTS): a failed transaction in flight (2 time-outs), then the reacting scan
+ * and the write to a neighbour (1 time-out, which holds a task period and a frame time; a warning says when the
+ * task period is longer) can still pass before the neighbours have the program's reaction to the loss.  Without age= there, the max age is the line's worst
+ * case between two polls of a unit (every other unit failing once: 2 time-outs each, its own read and write
+ * 2 more, the line's poll period) plus that margin. */
+static void set_loss_limit(io_device_t *d)
+{
+    const io_device_t *L = d->leader;
+    const unsigned period_ms = (unsigned)((d->rt->period_ns + 999999u) / 1000000u);
+    const unsigned margin = 3 * d->timeout_ms;
+    const unsigned worst_gap = L->line_poll_ms + 2 * d->timeout_ms * L->n_members;
+
+    d->loss_ms = d->age_ms;
+    if (L->n_members < 2)
+        return;
+    if (period_ms >= d->timeout_ms)
+        log_msg(d->rt->log, LOG_WARN, "I/O device %u (%s): the task period (%u ms) is not shorter than the response "
+                "time-out (%u ms): after a loss on serial line %s the program's reaction can reach the other units "
+                "later than max age", d->index + 1, d->name, period_ms, d->timeout_ms, d->path);
+    if (!d->age_given)
+        d->age_ms = worst_gap + margin;
+    d->loss_ms = d->age_ms > margin ? d->age_ms - margin : 1;
+    if (d->loss_ms < worst_gap)
+        log_msg(d->rt->log, LOG_WARN, "I/O device %u (%s): max age %u ms less the line margin %u ms leaves %u ms, "
+                "less than the worst case between two polls on serial line %s (%u ms): a silent neighbour can "
+                "make it count as lost", d->index + 1, d->name, d->age_ms, margin, d->loss_ms, d->path, worst_gap);
+}
+
 /* Devices on one serial line (RS-485 multi-drop) share one context and one poll thread: the first one's. */
 static int group_lines(io_modbus_t *io, char *err, size_t errlen)
 {
@@ -848,6 +962,7 @@ static int group_lines(io_modbus_t *io, char *err, size_t errlen)
         io_device_t *d = &io->dev[i];
         d->leader = d;
         d->line_poll_ms = d->poll_ms;
+        d->n_members = 1;
         for (unsigned j = 0; d->rtu && j < i; j++) {
             io_device_t *o = &io->dev[j];
             if (!o->rtu || o->leader != o || strcmp(o->path, d->path) != 0)
@@ -869,11 +984,14 @@ static int group_lines(io_modbus_t *io, char *err, size_t errlen)
                 tail = tail->next_member;
             tail->next_member = d;
             d->leader = o;
+            o->n_members++;
             if (d->poll_ms < o->line_poll_ms)
                 o->line_poll_ms = d->poll_ms;
             break;
         }
     }
+    for (unsigned i = 0; i < io->n; i++)
+        set_loss_limit(&io->dev[i]);
     return 0;
 }
 
@@ -962,8 +1080,10 @@ static int modbus_open_layer(runtime_t *rt, void **state, char *err, size_t errl
             return -1;
         }
         log_msg(rt->log, LOG_INFO, "I/O device %u (%s): %s, poll %u ms, response timeout %u ms, inputs lost "
-                "after %u ms, %u input and %u output values, status input %d", i + 1, d->name, d->where,
-                d->poll_ms, d->timeout_ms, d->age_ms, d->n_in, d->n_out, d->status_bit);
+                "after %u ms%s, %u input and %u output values, status input %d", i + 1, d->name, d->where,
+                d->poll_ms, d->timeout_ms, d->loss_ms,
+                d->loss_ms != d->age_ms ? " (max age less the shared line's margin)" : "", d->n_in, d->n_out,
+                d->status_bit);
         unsigned need = 2 * d->timeout_ms + d->poll_ms + 200;
         if (need > wait_ms)
             wait_ms = need;
