@@ -26,6 +26,7 @@ class Behaviour:
     change_scans: int = 5             # scans between tool-change and tool-changed
     fault_on_change: int | None = None  # raise toolchanger-fault with this reason instead of tool-changed
     fault_on_prepare: int | None = None  # raise a fault with this reason during the prepare (still answered)
+    homed: bool = True                # CarouselHomed: the carousel's position is known
     stale_prepared: bool = False      # start with tool-prepared stuck high for `stale_scans`
     stale_scans: int = 20
     heartbeat: bool = True            # PlcAlive and PlcHeartbeat move
@@ -62,6 +63,8 @@ class FakePlc:
         self._state: dict[str, object] = {"stale": self.b.stale_scans if self.b.stale_prepared else 0}
         if self.b.stale_prepared:
             self.coils[addr.coil["ToolPrepared"]] = True
+        if "CarouselHomed" in addr.coil:
+            self.coils[addr.coil["CarouselHomed"]] = self.b.homed
 
     # ----------------------------------------------------------------- helpers --
     def c(self, name: str) -> bool:

@@ -111,9 +111,18 @@ def test_a_fault_does_not_end_a_prepare_and_refuses_the_next_m6(capsys):
         started = "change started" in fake.events
     assert status == 3, out + err
     assert "host fault latch: set (106)" in out
-    assert "T5: prepared" in out
+    assert "T5: prepare answered" in out and "without pre-positioning the carousel: toolchanger fault 106" in out
+    assert "T5: prepared" not in out, "a faulted changer's answer is no completed prepare"
     assert "M6 refused: the toolchanger is faulted" in out
     assert not started
+
+
+def test_a_prepare_answered_while_the_carousel_is_not_homed_is_not_called_prepared(capsys):
+    with FakePlc(ADDR, Behaviour(homed=False)) as fake:
+        status, out, err = run(fake, capsys, "T5")
+    assert status == 0, out + err
+    assert "T5: prepare answered" in out and "without pre-positioning the carousel: it is not homed" in out
+    assert "T5: prepared" not in out
 
 
 def test_clear_drops_the_host_latch_after_the_plc_cleared(capsys):

@@ -72,6 +72,11 @@ def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app,
                 rt.wait_for(r"status RUN \| tool 3 \| changer \w+ \| fault -101 ESTOP")
                 mon.unforce("%IX49.7", restore=True)
                 rt.wait_for(r"E-stop released: the E-stop chain is closed")
+            # iov2 answers a faulted changer's prepare: the log must not call it done
+            assert "without pre-positioning" in session.prepare(5, 5).text
+            rt.wait_for(r"warning: prepare tool 5 answered after \d+\.\d{3} s without pre-positioning: fault -101 "
+                        r"ESTOP")
+            assert "prepare tool 5 done" not in rt.log
             assert session.clear().ok
             rt.wait_for(r"fault -101 ESTOP cleared")
             assert session.home().ok

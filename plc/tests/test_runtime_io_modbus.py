@@ -309,6 +309,7 @@ def test_tool_changes_complete_over_modbus(tmp_path, transport, machine):
         second = ok(rig.plc.host("T4 M6"), rig.plc)
         assert second.splitlines()[-1] == "tool 4 in spindle", second
         assert rig.plc.read("ToolInSpindle", "FaultReason") == {"ToolInSpindle": 4, "FaultReason": 0}
+        assert rig.module.machine.spindle_tool == 4, "the module's machine holds the tool the PLC reports"
         # the module's own machine really moved, and no mechanical mistake happened on it
         turns = [e for e in rig.module.events if e[1] == "coils" and e[2][rig.module.machine.wiring.motor_on]]
         assert turns, "the carousel motor was never switched on at the module"
@@ -473,3 +474,46 @@ def test_exceptions_or_garbage_are_counted_and_lost_after_the_age_limit(fault_ri
     assert rig.plc.device_diag()[DIAG_STATE] == STATE_OK
     # one log line per state change, not one per failed transaction
     assert rig.plc.text().count("): lost:") == lines + 1
+
+
+def test_module_lost_during_a_prepare_turn_demands_homing_before_the_next_change(tmp_path):
+    """Issue 37: the module falls silent while the prepare of T1 turns the carousel (its motor stays on until the
+    module's own watchdog stops it), so the carousel ends where the PLC did not see it go.  The prepare is answered
+    (iov2 answers a faulted changer's prepare) but never called done; once the module answers and the fault is
+    cleared the PLC asks for homing (CarouselHomed FALSE, Recovery +1) and refuses T1 M6 with -107 until homed;
+    after homing the change loads tool 1, the tool the machine really holds."""
+    rig = make_rig(tmp_path, "tcp", "default")
+    machine = rig.module.machine
+    try:
+        ok(rig.plc.host("clear", "T3 M6", "T0 M6"), rig.plc)     # tool 3 back in pocket 3: the carousel is there
+        assert machine.spindle_tool == 0 and machine.at_pocket() == 3, (machine.spindle_tool, machine.position)
+        result: dict = {}
+        host = threading.Thread(target=lambda: result.update(r=rig.plc.host("T1")))
+        host.start()
+        wait_for(lambda: rig.module.coil("motor_on"), 60 * SLOW, "the prepare's turn at the module")
+        rig.module.set_mode("silent")          # a silent module holds its outputs: the carousel keeps turning
+        wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is True, 30 * SLOW, "the loss declared")
+        rig.module.outputs_off()               # the module's own watchdog, later
+        host.join(120 * SLOW)
+        prepare = result["r"].stdout
+        assert "T1: prepared" not in prepare and "without pre-positioning" in prepare and "-111" in prepare, prepare
+
+        rig.module.set_mode("normal")
+        wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
+        ok(rig.plc.host("clear"), rig.plc)
+        state = rig.plc.read("CarouselHomed", "Recovery", "FaultReason", "PlcReady")
+        assert state["FaultReason"] == 0 and state["CarouselHomed"] is False, state
+        assert state["Recovery"] & 1 and state["PlcReady"] is False, state
+        refused = rig.plc.host("T1 M6")
+        assert refused.returncode == 1 and "toolchanger error -107" in refused.stdout, refused.stdout
+        assert "tool 1 in spindle" not in refused.stdout, refused.stdout
+        assert machine.spindle_tool == 0 and rig.plc.read("ToolInSpindle")["ToolInSpindle"] == 0
+
+        out = ok(rig.plc.host("clear", "home", "T1 M6"), rig.plc)
+        assert out.splitlines()[-1] == "tool 1 in spindle", out
+        assert machine.spindle_tool == 1, f"the machine holds tool {machine.spindle_tool}, the PLC says 1"
+        assert rig.plc.read("ToolInSpindle", "Recovery", "CarouselHomed") == \
+            {"ToolInSpindle": 1, "Recovery": 0, "CarouselHomed": True}
+        assert machine.crashes == []
+    finally:
+        rig.close()

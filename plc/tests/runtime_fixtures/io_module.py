@@ -5,6 +5,11 @@ arm, collet coils) and drives the sensors (home, pocket, code, arm, collet discr
 model with its own timing -- not the ST plant models of st_src/.  The model is evaluated when a request arrives,
 from the monotonic clock, so sensor edges fall where the mechanics put them whatever the poll rate.
 
+Tools: pocket n holds tool n at the start, the spindle is empty.  A tool moves only where the mechanics put it,
+with the arm forward at a pocket: the collet opening lets the spindle's tool go into the fork (Put); the collet
+closing on an empty spindle clamps the fork's tool (Get), unless the spindle let that tool go during the same
+stay forward.  So `spindle_tool` is the tool the machine really holds, whatever the PLC believes.
+
 Faults to inject (`module.mode`): "normal", "silent" (requests are dropped: the module stops answering; only
 those of some units with `set_mode("silent", units=...)`, one board of an RS-485 line falling silent),
 "slow" (each answer waits `slow_s`), "exception" (every request answered with exception 02), "garbage" (every
@@ -79,9 +84,33 @@ class Machine:
     brake_free_at: float | None = None
     last: float = field(default_factory=time.monotonic)
     crashes: list[str] = field(default_factory=list)
+    spindle_tool: int = 0                    # the tool clamped in the spindle, 0 = none
+    pocket_tools: dict[int, int] = field(default_factory=dict)   # pocket -> tool, 0 = empty
+    fork_pocket: int = 0                     # pocket at the spindle while the arm is forward, 0 = arm not forward
+    released: bool = False                   # the spindle let its tool go during this stay forward (Put)
 
     def __post_init__(self) -> None:
         self.position = float(self.mech.start_pocket - 1)
+        self.pocket_tools = {n: n for n in range(1, self.mech.pockets + 1)}
+
+    def _move_tools(self, now: float, was_forward: bool, was_open: bool) -> None:
+        forward, is_open = self.arm >= 1.0, self.collet >= 1.0
+        if forward and not was_forward:
+            self.fork_pocket = self.at_pocket()
+            if self.fork_pocket == 0:
+                self.crashes.append(f"arm forward between two pockets at {now:.3f}")
+            self.released = False
+        elif not forward and was_forward:
+            self.fork_pocket = 0
+        p = self.fork_pocket
+        if not forward or p == 0:
+            return
+        if is_open and not was_open and self.spindle_tool:       # Put: the spindle lets go into the fork
+            if self.pocket_tools.get(p, 0):
+                self.crashes.append(f"tool {self.spindle_tool} put into the full pocket {p} at {now:.3f}")
+            self.pocket_tools[p], self.spindle_tool, self.released = self.spindle_tool, 0, True
+        elif was_open and not is_open and not self.released and not self.spindle_tool and self.pocket_tools.get(p, 0):
+            self.spindle_tool, self.pocket_tools[p] = self.pocket_tools[p], 0      # Get: the collet clamps it
 
     def advance(self, now: float) -> None:
         dt = max(0.0, now - self.last)
@@ -97,11 +126,13 @@ class Machine:
                 if self.arm > 0.0:
                     self.crashes.append(f"carousel turned with the arm out at {now:.3f}")
                 self.position = (self.position + direction * dt / m.pocket_time_s) % m.pockets
+        was_forward, was_open = self.arm >= 1.0, self.collet >= 1.0     # open: as its sensor says
         step_arm = dt / m.arm_travel_s
         self.arm = min(1.0, self.arm + step_arm) if self.coils[w.arm_forward] else max(0.0, self.arm - step_arm)
         step_collet = dt / m.collet_s
         self.collet = min(1.0, self.collet + step_collet) if self.coils[w.collet_open] \
             else max(0.0, self.collet - step_collet)
+        self._move_tools(now, was_forward, was_open)
 
     def set_coils(self, now: float, address: int, values: list[bool]) -> None:
         self.advance(now)
@@ -288,6 +319,15 @@ class IoModule:
             except Exception:     # noqa: BLE001 - best effort at teardown
                 pass
         self._thread.join(10)
+
+    def outputs_off(self) -> float:
+        """The module's own watchdog: every coil off now (a silent module otherwise holds its last outputs);
+        return the monotonic time."""
+        with self.lock:
+            now = time.monotonic()
+            self.machine.set_coils(now, 0, [False] * COIL_COUNT)
+            self.note("coils", list(self.machine.coils), now)
+        return now
 
     def coil(self, name: str) -> bool:
         with self.lock:

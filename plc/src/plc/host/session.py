@@ -224,14 +224,23 @@ class Session:
         self.tags.write(ToolPrepNumber=tool, ToolPrepPocket=pocket)
         self.tags.write(ToolPrepare=True)
         try:
-            self.wait(lambda s: s["ToolPrepared"], self.timeouts.request, f"tool-prepared for T{tool}")
+            s = self.wait(lambda s: s["ToolPrepared"], self.timeouts.request, f"tool-prepared for T{tool}")
         except HostError:
             self.tags.write(ToolPrepare=False)
             raise
         self.tags.write(ToolPrepare=False)
         self.wait(lambda s: not s["ToolPrepared"], self.timeouts.ack_drop, "tool-prepared to drop")
         self.prepared = (tool, pocket)
-        return Outcome(True, f"T{tool}: prepared (pocket {pocket}) in {time.monotonic() - t0:.2f} s")
+        took = f"in {time.monotonic() - t0:.2f} s"
+        # iov2 answers every prepare, a faulted changer's too: say "prepared" only for what the PLC saw done
+        reason = self._new_fault if self._new_fault is not None else int(s.get("FaultReason", 0))
+        if reason:
+            return Outcome(True, f"T{tool}: prepare answered {took} without pre-positioning the carousel: "
+                           f"toolchanger fault {reason}: {self.reason_text(reason)}", reason)
+        if "CarouselHomed" in s and not s["CarouselHomed"]:
+            return Outcome(True, f"T{tool}: prepare answered {took} without pre-positioning the carousel: it is not "
+                           f"homed (the change homes it or is refused until it is)")
+        return Outcome(True, f"T{tool}: prepared (pocket {pocket}) {took}")
 
     def change(self) -> Outcome:
         """M6: start-change, then tool-change until tool-changed; a fault aborts it the way LinuxCNC does."""
@@ -359,8 +368,11 @@ class Session:
         self.tags.write(HomeRequest=False)
         self.tags.write(HomeRequest=True)
         try:
-            self.wait(lambda s: s["ChangerBusy"] or not s["CarouselHomed"], 1.0, "homing to start")
-            s = self.wait(lambda s: not s["ChangerBusy"], self.timeouts.request, "homing to end")
+            # the PLC takes the request on a later scan: an idle changer is no homing done, even when not homed
+            s = self.wait(lambda s: s["ChangerBusy"] or s.get("FaultReason", 0) != 0, self.timeouts.ack_drop,
+                          "homing to start")
+            if s["ChangerBusy"]:
+                s = self.wait(lambda s: not s["ChangerBusy"], self.timeouts.request, "homing to end")
         finally:
             self.tags.write(HomeRequest=False)
         if not s["CarouselHomed"]:

@@ -9,7 +9,7 @@
  * a change becomes a log line (the log thread writes it, the scan never waits):
  *
  *   tool change T3 -> T7 requested / done in 4.212 s / ended without completion
- *   prepare tool 7 (pocket 7) requested / done in 0.81 s
+ *   prepare tool 7 (pocket 7) requested / done in 0.81 s / answered without pre-positioning
  *   fault -103 CHANGE_INTERRUPTED raised: <text> / cleared
  *   abort from the host: reason 8 TASK_ABORT
  *   E-stop: chain opened / released
@@ -366,9 +366,20 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
         log_msg(log, LOG_INFO, "prepare tool %" PRId64 " (pocket %" PRId64 ") requested", cur[R_PREP_NUMBER],
                 cur[R_PREP_POCKET]);
     }
-    if (ROSE(R_TOOL_PREPARED) && ev->prepare_at)
-        log_msg(log, LOG_INFO, "prepare tool %" PRId64 " done in %.3f s", cur[R_PREP_NUMBER],
-                (double)(now - ev->prepare_at) / 1e9);
+    /* iov2 answers every prepare, a faulted changer's too: "done" only for one the changer saw complete */
+    if (ROSE(R_TOOL_PREPARED) && ev->prepare_at) {
+        const double took = (double)(now - ev->prepare_at) / 1e9;
+        if (HAS(R_FAULT_REASON) && cur[R_FAULT_REASON]) {
+            const reason_t *rs = reason_of(ev, cur[R_FAULT_REASON]);
+            log_msg(log, LOG_WARN, "prepare tool %" PRId64 " answered after %.3f s without pre-positioning: fault %"
+                    PRId64 " %s", cur[R_PREP_NUMBER], took, cur[R_FAULT_REASON], rs ? rs->name : "?");
+        } else if (HAS(R_CAROUSEL_HOMED) && !cur[R_CAROUSEL_HOMED]) {
+            log_msg(log, LOG_WARN, "prepare tool %" PRId64 " answered after %.3f s without pre-positioning: carousel "
+                    "not homed", cur[R_PREP_NUMBER], took);
+        } else {
+            log_msg(log, LOG_INFO, "prepare tool %" PRId64 " done in %.3f s", cur[R_PREP_NUMBER], took);
+        }
+    }
 
     if (ROSE(R_TOOL_CHANGE)) {
         ev->change_at = now;
