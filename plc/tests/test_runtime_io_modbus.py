@@ -517,3 +517,89 @@ def test_module_lost_during_a_prepare_turn_demands_homing_before_the_next_change
         assert machine.crashes == []
     finally:
         rig.close()
+
+
+# ---------------------------------------------------------------- losses at random points of every kind of motion
+
+SEQ_HOME, SEQ_PUT, SEQ_GET = 1, 3, 4            # SeqKind (map.toml states)
+# (phase, what starts it, when the phase has begun, the longest random delay into it, s)
+LOSS_PHASES = [
+    ("prepare turn", "prepare", lambda s, m: m.coil("motor_on") and s["SeqKind"] == 0, 0.3),
+    ("change turn", "change", lambda s, m: m.coil("motor_on") and s["SeqKind"] in (SEQ_PUT, SEQ_GET), 0.3),
+    ("homing", "home", lambda s, m: s["SeqKind"] == SEQ_HOME, 0.6),
+    ("Put step", "change", lambda s, m: s["SeqKind"] == SEQ_PUT and not m.coil("motor_on"), 1.0),
+    ("Get step", "change", lambda s, m: s["SeqKind"] == SEQ_GET and not m.coil("motor_on"), 1.0),
+]
+
+
+def documented_recovery(rig: Rig) -> list[str]:
+    """README's recovery after an interrupted change, the operator looking at the machine for `confirm`."""
+    state = rig.plc.read("Recovery", "UncertainTool")
+    todo = ["clear"] + (["home"] if state["Recovery"] & 1 else [])
+    if state["Recovery"] & 2:
+        seen = rig.module.machine.spindle_tool
+        assert seen in (0, state["UncertainTool"]), \
+            f"the PLC asks about tool {state['UncertainTool']}, the spindle holds {seen}"
+        todo += ["confirm", str(seen)]
+    return todo
+
+
+@pytest.mark.parametrize("transport,seed", [("tcp", 3701), ("rtu", 3702)])
+def test_a_loss_at_random_points_of_turns_homing_and_steps_never_leaves_a_false_tool(tmp_path, transport, seed):
+    """Issue 37 acceptance: the module falls silent at a random moment of each kind of motion (a prepare's turn,
+    a change's turn, homing, a Put step, a Get step; seeded, so a failure repeats), its motor running on until
+    its own watchdog stops it. Nothing the host printed may claim what the machine did not do, and after the
+    documented recovery the next change ends with the machine holding the tool the PLC reports."""
+    import random
+    rng = random.Random(seed)
+    rig = make_rig(tmp_path, transport, "default")
+    machine = rig.module.machine
+    hits: list[str] = []
+    misses: list[str] = []
+    try:
+        ok(rig.plc.host("clear", "T3 M6", "T0 M6"), rig.plc)     # spindle empty: a prepare turns (tool t in pocket t)
+        for k, (phase, op, begun, longest) in enumerate(LOSS_PHASES):
+            for attempt in range(4):                 # a draw after the phase's end is a miss: draw again
+                here = rig.plc.read("ToolInSpindle")["ToolInSpindle"] or rig.plc.read("CurrentPocket")["CurrentPocket"]
+                target = rng.choice([t for t in range(1, 7) if min((t - here) % 6, (here - t) % 6) >= 2])
+                words = {"prepare": [f"T{target}"], "change": [f"T{target} M6"], "home": ["home"]}[op]
+                result: dict = {}
+                host = threading.Thread(target=lambda: result.update(r=rig.plc.host(*words)))
+                host.start()
+                wait_for(lambda: begun(rig.plc.read("SeqKind"), rig.module), 60 * SLOW,
+                         f"the {phase} at the module", alive=host.is_alive)
+                time.sleep(rng.uniform(0.0, longest))
+                rig.module.set_mode("silent")
+                wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is True, 30 * SLOW, "the loss")
+                rig.module.outputs_off()
+                host.join(120 * SLOW)
+                out = result["r"].stdout
+                claimed = re.search(r"tool (\d+) in spindle\s*$", out)
+                if claimed:
+                    assert machine.spindle_tool == int(claimed.group(1)), f"{phase}: {out}"
+                if op == "prepare" and "-111" in out:
+                    assert "prepared (pocket" not in out, f"{phase}: a prepare whose turn was cut called done: {out}"
+                # the loss ended the command (else it had completed first): by the loss's fault, or by a sequence
+                # step's own time-out when that is shorter than the rig's age limit (the inputs froze)
+                hit = "-111" in out or "toolchanger error" in out or "not homed" in out
+                (hits if hit else misses).append(phase)
+                print(f"{phase}: {'hit' if hit else 'miss'}: {out.splitlines()[-1] if out else result['r'].stderr}")
+
+                rig.module.set_mode("normal")
+                wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
+                # the next draw's start: an empty spindle for a prepare's turn, a tool to put back for a change
+                following = phase if not hit else (LOSS_PHASES[k + 1][0] if k + 1 < len(LOSS_PHASES) else "")
+                after = 0 if following == "prepare turn" else rng.randint(1, 6)
+                out = ok(rig.plc.host(*documented_recovery(rig), f"T{after} M6"), rig.plc)
+                assert out.splitlines()[-1] == f"tool {after} in spindle", out
+                assert machine.spindle_tool == after == rig.plc.read("ToolInSpindle")["ToolInSpindle"], \
+                    f"after a loss in the {phase}: the machine holds {machine.spindle_tool}, the PLC says {after}"
+                assert rig.plc.read("Recovery", "FaultReason") == {"Recovery": 0, "FaultReason": 0}
+                assert machine.crashes == [], machine.crashes
+                if hit:
+                    break
+            assert phase in hits, f"no loss fell inside the {phase} in 4 draws"
+        print(f"\n{transport}: {len(hits)} losses inside a motion ({', '.join(hits)}), {len(misses)} after it "
+              f"had ended: after each recovery the machine held the tool the PLC reports")
+    finally:
+        rig.close()
