@@ -94,6 +94,11 @@ BAD = [
     ('[[io.device]]\ntcp = "127.0.0.1"\nstatus_input = "%IX0.3"\n'
      'discrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n',
      ":3:1: error: [[io.device]] 1: status_input %IX0.3 lies in discrete_inputs of device 1"),
+    ('[[io.device]]\ntcp = "127.0.0.1"\nstatus_input = "%IX49.6"\n'
+     'discrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n',
+     ":3:1: error: [[io.device]] 1: status_input %IX49.6 is the runtime's ForcesActive"),
+    ('[[io.device]]\ntcp = "127.0.0.1"\ndiscrete_inputs = [{ address = 0, count = 16, to = "%IX48.0" }]\n',
+     ":3:20: error: [[io.device]] 1: discrete_inputs %IX48.0..%IX49.7 covers %IX49.6, the runtime's ForcesActive"),
     ('[[io.device]]\nrtu = "/dev/null"\nunit = 1\ndiscrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n\n'
      '[[io.device]]\nrtu = "/dev/null"\nunit = 1\ncoils = [{ address = 0, count = 8, from = "%QX2.0" }]\n',
      ":8:1: error: [[io.device]] 2: unit 1 is already device 1 on serial line /dev/null"),

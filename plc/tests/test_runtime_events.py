@@ -9,6 +9,7 @@ the real E-stop chain, which is open).  Every wait is bounded (SLOW); no verdict
 from __future__ import annotations
 
 import re
+import threading
 import time
 from pathlib import Path
 
@@ -94,3 +95,60 @@ def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app,
     for line in rt.log.splitlines():          # every tool change line names both tools
         if "tool change" in line:
             assert re.search(r"tool change T\d+ -> T\d+ ", line), line
+
+
+def test_a_force_during_a_prepare_turn_drops_the_position_and_nothing_claims_the_turn(app, tmp_path):
+    """Issue 37: a forced value is not the machine's.  The runtime raises ForcesActive (%IX49.6, DI 398) while
+    any variable is forced; a force during a prepare's turn faults the changer with -115, the prepare is not
+    called done, and once the force ends and the fault is cleared the PLC asks for homing and refuses the change
+    until homed; after `home` the change loads the tool, and the simulated spindle really holds it."""
+    binary, events, info = app
+    (tmp_path / "token").write_text(TOKEN)
+    sock = tmp_path / "m.sock"
+    with h.Runtime(binary, "--no-rt", "--events", str(events), "--monitor", str(sock), "--monitor-token",
+                   str(tmp_path / "token"), "--status-interval", "0.2",
+                   "--writable-registers", "512-8191") as rt:
+        rt.wait_for(r"homing done: carousel homed, pocket 1 at the change position")
+        client = ModbusClient("127.0.0.1", rt.port, timeout=5 * h.SLOW)
+        client.connect()
+        session = Session(info.rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60 * h.SLOW))
+        answers: list = []
+        try:
+            session.start()
+            rt.wait_for(r"host link restored")
+            with Monitor(sock, timeout=5 * h.SLOW) as mon:
+                mon.auth(TOKEN)
+                assert client.read_discrete_inputs(398, 1) == [False], "no force: ForcesActive FALSE"
+                preparer = threading.Thread(target=lambda: answers.append(session.prepare(4, 4)))
+                preparer.start()
+                h.wait_until(lambda: mon.read("ATC.MACHINE.CAROUSELLINESACTIVE")
+                             ["CONFIG0.RES0.ATC.MACHINE.CAROUSELLINESACTIVE"] is True, 10 * h.SLOW,
+                             "the prepare's turn under way")
+                mon.force("%IX2.5", True)                       # any variable: here the tool length sensor
+                rt.wait_for(r"fault -115 FORCES_ACTIVE raised")
+                assert client.read_discrete_inputs(398, 1) == [True], "the host sees ForcesActive"
+                preparer.join(30 * h.SLOW)
+                assert answers and "without pre-positioning" in answers[0].text, answers
+                assert "prepare tool 4 done" not in rt.log
+                kept = session.clear()
+                assert not kept.ok and kept.reason == -115, f"a clear while forced leaves the fault: {kept}"
+                mon.unforce_all()
+                h.wait_until(lambda: client.read_discrete_inputs(398, 1) == [False], 5 * h.SLOW, "ForcesActive dropped")
+            assert session.clear().ok
+            s = session.poll()
+            assert s["Recovery"] & 1 and not s["CarouselHomed"], f"homing asked after the force: {s}"
+            assert session.prepare(4, 4).ok
+            refused = session.change()
+            assert not refused.ok and refused.reason == -107, refused
+            assert session.clear().ok
+            assert session.home().ok
+            assert session.prepare(4, 4).ok
+            assert session.change().ok
+            with Monitor(sock, timeout=5 * h.SLOW) as mon:
+                held = mon.read("ATC.MACHINE.SIMSPINDLETOOL", "ATC.MACHINE.SIMCRASH")
+            assert held == {"CONFIG0.RES0.ATC.MACHINE.SIMSPINDLETOOL": 4,
+                            "CONFIG0.RES0.ATC.MACHINE.SIMCRASH": False}, held
+            assert session.poll()["ToolInSpindle"] == 4
+        finally:
+            session.stop()
+            client.close()

@@ -417,6 +417,10 @@ def _check_ranges(ck: Checker, key: Path_, where: str, kind: RangeKind, value: A
         dev.ranges.append(IoRange(kind, address, count, image, safe, nth=i))
 
 
+# Discrete inputs the runtime itself sets (runtime.h, io_sim.c): no device may write them.
+RUNTIME_INPUTS = {398: "ForcesActive (set while a variable is forced)", 399: "SimulatedPlant (the simulated plant)"}
+
+
 def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
     """Two ranges writing one part of the image, two ranges on one table of one device, a status input inside
     an input range; devices sharing a serial line with different line settings or the same unit."""
@@ -441,6 +445,12 @@ def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
                     ck.error(("io", "device", d.index - 1, r.kind.key, r.nth),
                              f"[[io.device]] {d.index}: {r.kind.key} addresses {r.address}..{r.address + r.count - 1}"
                              f" overlap {o.kind.key} {o.address}..{o.address + o.count - 1} on the same device")
+            if area(r) == "%IX":
+                for bit, what in RUNTIME_INPUTS.items():
+                    if r.image <= bit < r.image + r.count:
+                        ck.error(("io", "device", d.index - 1, r.kind.key, r.nth),
+                                 f"[[io.device]] {d.index}: {r.kind.key} {show(r, r.image, r.image + r.count - 1)} "
+                                 f"covers {bit_name('%IX', bit)}, the runtime's {what}")
             placed.append((d, i, r))
     status = {}
     for d in devices:
@@ -451,6 +461,10 @@ def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
                 ck.error(("io", "device", d.index - 1, "status_input"),
                          f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} lies in "
                          f"discrete_inputs of device {od.index}")
+        if d.status_input in RUNTIME_INPUTS:
+            ck.error(("io", "device", d.index - 1, "status_input"),
+                     f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} is the runtime's "
+                     f"{RUNTIME_INPUTS[d.status_input]}")
         if d.status_input in status:
             ck.error(("io", "device", d.index - 1, "status_input"),
                      f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} is already the "

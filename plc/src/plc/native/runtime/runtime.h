@@ -46,6 +46,10 @@
 
 /* OpenPLC's address map (SPEC section 6). */
 #define MAP_BITS        PLC_MAP_BITS    /* %IX0.0..%IX99.7, %QX0.0..%QX99.7 */
+/* %IX49.6: TRUE while any variable is forced (the monitor's `force`), set by the
+ * runtime after the forces are laid on every scan: inputs are then not the
+ * machine's, and the program must not believe them (docs/position-integrity.md). */
+#define FORCES_ACTIVE_BIT 398
 #define MAP_WORDS       PLC_MAP_WORDS   /* %IW, %QW, %MW, %MD, %ML: 1024 each */
 #define MAP_HOLD_QW     0u      /* holding registers of %QW0.. */
 #define MAP_HOLD_MW     1024u   /* holding registers of %MW0.. */
@@ -315,6 +319,7 @@ struct runtime {
     monitor_t *monitor;            /* NULL without --monitor */
     force_state_t *force;          /* writes, forces, snapshots (with the monitor) */
     events_t *events;              /* NULL without --events */
+    plc_bool_t *forces_flag;       /* the program's variable at FORCES_ACTIVE_BIT, NULL if it has none */
     pthread_t scan_thread;
     uint64_t started_ns;           /* when the scan loop started (monotonic) */
     uint64_t refresh_every;        /* scans between two refreshes of the percentiles */

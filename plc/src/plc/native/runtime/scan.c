@@ -370,8 +370,22 @@ static void hook_after_inputs(void *ctx)
     runtime_t *rt = ctx;
 
     monitor_after_inputs(rt);
-    if (rt->force && force_count(rt->force) > 0)    /* forced inputs in the image too: hosts see them */
+    const plc_bool_t forced = rt->force && force_count(rt->force) > 0;
+    /* ForcesActive last, so not even a force of it can hide the others */
+    rt->pimg.ix[FORCES_ACTIVE_BIT] = forced;
+    if (rt->forces_flag)
+        *rt->forces_flag = forced;
+    if (forced)                                     /* forced inputs in the image too: hosts see them */
         plc_scan_reflect_inputs(&rt->core);
+}
+
+/* The program's variable at FORCES_ACTIVE_BIT (a bound input), or NULL. */
+static plc_bool_t *forces_flag_var(const plc_scan_t *core, const prog_image_t *image)
+{
+    for (uint32_t i = 0; i < core->n_inputs; i++)
+        if (core->bindings[i].slot == &image->ix[FORCES_ACTIVE_BIT])
+            return core->bindings[i].var;
+    return NULL;
 }
 static void hook_before_outputs(void *ctx) { monitor_before_outputs(ctx); }
 static void hook_scan_done(void *ctx, uint64_t scan_no) { (void)scan_no; monitor_scan_done(ctx); }
@@ -398,6 +412,8 @@ int scan_run(runtime_t *rt)
      * publication, the snapshot and the application's events once the scan is published. */
     rt->core.hooks = (plc_scan_hooks_t){ .ctx = rt, .after_inputs = hook_after_inputs,
                                          .before_outputs = hook_before_outputs, .scan_done = hook_scan_done };
+
+    rt->forces_flag = forces_flag_var(&rt->core, &rt->pimg);
 
     rt->state = PLC_STATE_RUNNING;
     pthread_mutex_lock(&rt->lock);
