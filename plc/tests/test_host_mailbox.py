@@ -79,6 +79,9 @@ class FakeTags:
     def get(self, name: str):
         return self.values[name]
 
+    def has(self, name: str) -> bool:
+        return name in self.values
+
     def read(self, *names: str) -> dict:
         return {n: self.values[n] for n in names}
 

@@ -31,6 +31,9 @@ AXES = ("X", "Y", "Z", "A", "B", "C")            # bit i of MbxAxisMask = AXES[i
 RECORD = tuple(f"Mbx{a}" for a in AXES) + ("MbxValue", "MbxArgsOpcode", "MbxArgsText", "MbxArgsMask", "MbxArgsId")
 REQUEST = ("MbxRequestId", "MbxOpcode", "MbxText", "MbxAxisMask") + RECORD
 MAILBOX = ("MbxHostActive", "MbxAnswerId", "MbxAnswerResult") + REQUEST
+# where the host's spindle is, in 1/10 unit: the PLC sends the carousel forward only when it matches the targets of
+# the sequence's moves (FB_SequenceRunner, -214)
+POSITION = ("HostPosX", "HostPosY", "HostPosZ")
 
 
 def mailbox_in_map(tags: Tags) -> bool:
@@ -89,8 +92,15 @@ class Mailbox:
     served: int = 0
     _last_id: int = -1
 
+    def report_position(self) -> dict[str, int]:
+        """HostPosX/Y/Z of the position the requests set (in the same write as what follows it)."""
+        if not all(self.tags.has(n) for n in POSITION):
+            return {}
+        return {f"HostPos{a}": max(-32768, min(32767, round(self.position.get(a, 0.0) * 10))) for a in "XYZ"}
+
     def announce(self) -> None:
         """MbxHostActive TRUE; a request already pending (the PLC answered nothing yet) is served by step()."""
+        self.tags.write(**self.report_position())
         self.tags.write(MbxHostActive=True)
         self.say("mailbox: this host executes the sequences' requests (MbxHostActive)")
 
@@ -111,7 +121,7 @@ class Mailbox:
         if int(now["MbxArgsId"]) != rid or int(now["MbxArgsOpcode"]) == 0:
             self.say(f"mailbox #{rid}: withdrawn by the PLC before the answer (abort or timeout); not answered")
             return req
-        self.tags.write(MbxAnswerResult=result)
+        self.tags.write(**self.report_position(), MbxAnswerResult=result)
         self.tags.write(MbxAnswerId=rid)
         self.served += 1
         return req
