@@ -41,13 +41,38 @@ def free_port() -> int:
 @pytest.fixture(scope="module")
 def deployment(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("deploy") / "atc-plc"
-    result = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out))
+    result = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out), "--simulated")
     assert result.returncode == 0, result.stderr
     assert f"run configuration {REPO / 'configs' / 'runtime.toml'}" in result.stderr
+    assert "warning: --simulated: this service runs the simulated plant" in result.stderr
     return out
 
 
 # ---------------------------------------------------------------------------- the unit
+
+def test_the_simulated_plant_is_deployed_only_when_asked_and_then_says_so(deployment, tmp_path):
+    """Issue 26: the shipped run configuration runs the simulated plant; a service built from it would answer M6
+    as done while nothing moves. Without --simulated it is refused and nothing is written; a configuration with
+    another I/O layer deploys without it, and its runtime does not run the simulation."""
+    out = tmp_path / "refused"
+    refused = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out))
+    assert refused.returncode == 2, refused.stderr
+    assert 'layer = "sim": the service would run the simulated plant' in refused.stderr
+    assert "Traceback" not in refused.stderr and not out.exists(), "nothing written"
+    unit = (deployment / "atc-plc.service").read_text()
+    assert re.search(r"^Description=.*SIMULATED PLANT, no machine I/O$", unit, re.M), unit
+    assert "**This service runs the simulated plant**" in (deployment / "README.md").read_text()
+    assert "--io sim" in (deployment / "current" / "run").read_text()
+
+    real = tmp_path / "runtime.toml"
+    real.write_text((REPO / "configs" / "runtime.toml").read_text().replace('layer = "sim"', 'layer = "none"'))
+    out = tmp_path / "machine"
+    ok = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out), "--config", str(real))
+    assert ok.returncode == 0, ok.stderr
+    assert "SIMULATED" not in (out / "atc-plc.service").read_text() and "warning" not in ok.stderr
+    run = (out / "current" / "run").read_text()
+    assert "--io none" in run and "--io sim" not in run, run
+
 
 def test_the_unit_asks_for_what_a_machine_needs(deployment):
     unit = (deployment / "atc-plc.service").read_text()
@@ -170,7 +195,7 @@ def test_upgrade_keeps_the_tool_refuses_a_loss_and_rolls_back(deployment, servic
     v2 = app_with_tool_change_counter(tmp_path)
     offset = len(service.text())
     up = plc_cli("deploy", "upgrade", "--prefix", str(deployment), "--src", str(v2), "--config", config,
-                 "--restart-command", restart, "--log", str(service.log))
+                 "--simulated", "--restart-command", restart, "--log", str(service.log))
     assert up.returncode == 0, up.stderr + service.text()[offset:]
     assert "TOOLCHANGES (UDINT) is new: it starts from its initial value" in up.stderr
     switch = re.search(r"switch-over ([\d.]+) ms \(outputs safe -> first scan of ", up.stdout)
@@ -186,7 +211,7 @@ def test_upgrade_keeps_the_tool_refuses_a_loss_and_rolls_back(deployment, servic
     # back to the sources without the counter: its value would be lost, so no upgrade without --force
     releases = sorted(p.name for p in (deployment / "releases").iterdir())
     refused = plc_cli("deploy", "upgrade", "--prefix", str(deployment), "--src", str(REPO / "st_src"), "--config",
-                      config, "--restart-command", "false", "--log", str(service.log))
+                      config, "--simulated", "--restart-command", "false", "--log", str(service.log))
     assert refused.returncode == 1, refused.stderr
     assert "error: CONFIG0.RES0.ATC.TOOLCHANGES (UDINT) is no longer retained" in refused.stderr
     assert "upgrade refused: 1 retained value(s) would not be restored" in refused.stderr
