@@ -73,6 +73,13 @@ def test_the_simulated_plant_is_deployed_only_when_asked_and_then_says_so(deploy
     run = (out / "current" / "run").read_text()
     assert "--io none" in run and "--io sim" not in run, run
 
+    # self-contained: the monitor's socket, token and audit log in the service's own directories, and nothing
+    # the service runs or installs names the checkout it was built from
+    assert '--monitor "$run/plc.monitor" --monitor-token "$state/monitor.token" --audit "$state/audit.log"' in run
+    assert "RuntimeDirectory=atc-plc" in (out / "atc-plc.service").read_text()
+    for f in ("current/run", "atc-plc.service", "install.sh", "uninstall.sh", "README.md"):
+        assert str(REPO) not in (out / f).read_text(), f"{f} names the checkout {REPO}"
+
 
 def test_the_unit_asks_for_what_a_machine_needs(deployment):
     unit = (deployment / "atc-plc.service").read_text()

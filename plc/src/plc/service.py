@@ -151,11 +151,24 @@ def _libmodbus(binary: Path) -> Path | None:
 
 
 def runtime_argv(cfg: runtime.RunConfig) -> list[str]:
-    """The runtime's options for a service (no binary; the retain file is set by the run script)."""
+    """The runtime's options for a service (no binary). The retain file and the monitor's files are set by the
+    run script, in the service's own directories: nothing points back into the checkout it was built from."""
     argv = runtime.runtime_argv(Path("plc-runtime"), cfg)[1:]
-    i = argv.index("--retain")
-    del argv[i:i + 2]
+    for option in ("--retain", "--monitor", "--monitor-token", "--audit"):
+        if option in argv:
+            i = argv.index(option)
+            del argv[i:i + 2]
     return argv + ["--status", "log"]
+
+
+# the monitor channel of a service: socket in $RUNTIME_DIRECTORY (/run/NAME), token and audit log in
+# $STATE_DIRECTORY (/var/lib/NAME); the token is created (random, mode 0600) at the first start
+MONITOR_RUN = """run=${RUNTIME_DIRECTORY:-$state}
+if [ ! -f "$state/monitor.token" ]; then
+    (umask 077 && od -An -N16 -tx1 /dev/urandom | tr -d ' \\n' >"$state/monitor.token" && echo >>"$state/monitor.token")
+fi
+"""
+MONITOR_ARGS = ' --monitor "$run/plc.monitor" --monitor-token "$state/monitor.token" --audit "$state/audit.log"'
 
 
 RUN_SCRIPT = """#!/bin/sh
@@ -164,8 +177,8 @@ RUN_SCRIPT = """#!/bin/sh
 # The retained data live in $STATE_DIRECTORY (set by systemd from StateDirectory=).
 here=$(dirname "$(readlink -f "$0")")
 state=${{STATE_DIRECTORY:-/var/lib/{name}}}
-LD_LIBRARY_PATH="$here/lib${{LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}}" exec "$here/plc-runtime" \\
-    --retain "$state/{retain}" {args} "$@"
+{monitor}LD_LIBRARY_PATH="$here/lib${{LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}}" exec "$here/plc-runtime" \\
+    --retain "$state/{retain}"{monitor_args} {args} "$@"
 """
 
 
@@ -205,7 +218,10 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, name: 
     if lib is not None:
         shutil.copy2(lib, work / "lib" / lib.name)
     args = runtime_argv(cfg)
+    monitor = cfg.monitor
     (work / "run").write_text(RUN_SCRIPT.format(name=name, retain=RETAIN_FILE,
+                                                monitor=MONITOR_RUN if monitor else "",
+                                                monitor_args=MONITOR_ARGS if monitor else "",
                                                 args=" ".join(shlex.quote(a) for a in args)))
     os.chmod(work / "run", 0o755)
     if config:
@@ -273,6 +289,9 @@ TimeoutStopSec=15
 # the retained file lives in /var/lib/{name} ($STATE_DIRECTORY), kept across upgrades and uninstalls
 StateDirectory={name}
 StateDirectoryMode=0750
+# the monitor's socket lives in /run/{name} ($RUNTIME_DIRECTORY); its token and audit log beside the retained file
+RuntimeDirectory={name}
+RuntimeDirectoryMode=0750
 WorkingDirectory=/var/lib/{name}
 # SCHED_FIFO for the scan thread and memory locked (mlockall)
 LimitRTPRIO={rt_priority}
@@ -336,6 +355,12 @@ configuration and the systemd unit `{name}.service`.
 
 The machine needs `libmodbus` (copied into `releases/*/lib/`) and glibc; no compiler. The retained data (tool
 in the spindle, pocket table) live in `/var/lib/{name}/{retain}`.
+
+The monitor channel (`plc monitor`, `plc hmi`) is the socket `/run/{name}/plc.monitor`; writes and forces need the
+token `/var/lib/{name}/monitor.token` (random, mode 0600, created at the first start), and every one of them is
+logged in `/var/lib/{name}/audit.log`:
+
+    sudo plc monitor --socket /run/{name}/plc.monitor --token-file /var/lib/{name}/monitor.token forces
 
 ## What the unit does
 - starts at boot (`WantedBy=multi-user.target`) once the network is up; `Type=notify`: ready after the first
