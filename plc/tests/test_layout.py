@@ -29,3 +29,15 @@ def test_no_module_reaches_outside_the_package():
     offenders = [str(p.relative_to(src)) for p in src.rglob("*.py")
                  if "parents[" in p.read_text(encoding="utf-8") and p.name != "resources.py"]
     assert offenders == []
+
+
+def test_nothing_machine_local_is_tracked():
+    """A run's state (var/: retained data, the monitor's token and audit log) belongs to the machine it ran on:
+    no var/ folder is tracked anywhere, and git ignores a new one wherever it appears."""
+    tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert tracked.returncode == 0, tracked.stderr
+    assert [f for f in tracked.stdout.splitlines() if "var" in Path(f).parts[:-1]] == []
+    for path in ("var/plc.retain", "configs/examples/var/plc.retain", "plc/src/var/monitor.token"):
+        probe = subprocess.run(["git", "check-ignore", "-q", path], cwd=REPO, capture_output=True, text=True,
+                               timeout=60)
+        assert probe.returncode == 0, f"{path}: var/ must be ignored wherever it appears {probe.stderr}"
