@@ -39,13 +39,19 @@ def app(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo]:
     return runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE), events, info
 
 
-def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app, tmp_path):
-    binary, events, info = app
+def app_runtime(app, tmp_path: Path) -> h.Runtime:
+    """The application's runtime with its events, the monitor on tmp_path/m.sock (token TOKEN) and status lines."""
+    binary, events, _info = app
     (tmp_path / "token").write_text(TOKEN)
+    return h.Runtime(binary, "--no-rt", "--events", str(events), "--monitor", str(tmp_path / "m.sock"),
+                     "--monitor-token", str(tmp_path / "token"), "--status-interval", "0.2",
+                     "--writable-registers", "512-8191")
+
+
+def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app, tmp_path):
+    info = app[2]
     sock = tmp_path / "m.sock"
-    with h.Runtime(binary, "--no-rt", "--events", str(events), "--monitor", str(sock), "--monitor-token",
-                   str(tmp_path / "token"), "--status-interval", "0.2",
-                   "--writable-registers", "512-8191") as rt:
+    with app_runtime(app, tmp_path) as rt:
         rt.wait_for(r"events: \d+ of \d+ application signals watched, \d+ reason texts")
         rt.wait_for(r"changer: tool 0 in the spindle, state AtcIdle")
         rt.wait_for(r"homing done: carousel homed, pocket 1 at the change position")
@@ -102,12 +108,9 @@ def test_a_force_during_a_prepare_turn_drops_the_position_and_nothing_claims_the
     any variable is forced; a force during a prepare's turn faults the changer with -115, the prepare is not
     called done, and once the force ends and the fault is cleared the PLC asks for homing and refuses the change
     until homed; after `home` the change loads the tool, and the simulated spindle really holds it."""
-    binary, events, info = app
-    (tmp_path / "token").write_text(TOKEN)
+    info = app[2]
     sock = tmp_path / "m.sock"
-    with h.Runtime(binary, "--no-rt", "--events", str(events), "--monitor", str(sock), "--monitor-token",
-                   str(tmp_path / "token"), "--status-interval", "0.2",
-                   "--writable-registers", "512-8191") as rt:
+    with app_runtime(app, tmp_path) as rt:
         rt.wait_for(r"homing done: carousel homed, pocket 1 at the change position")
         client = ModbusClient("127.0.0.1", rt.port, timeout=5 * h.SLOW)
         client.connect()

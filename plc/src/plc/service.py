@@ -182,7 +182,15 @@ state=${{STATE_DIRECTORY:-/var/lib/{name}}}
 """
 
 
-def build_release(prefix: Path, sources: list[Path], config: Path | None, name: str,
+def load_run_config(config: Path | None) -> runtime.RunConfig:
+    """The run configuration (the built-in defaults without one), its mistakes as a DeployError."""
+    try:
+        return runtime.load_config(config) if config else runtime.RunConfig()
+    except runtime.ConfigError as exc:
+        raise DeployError(str(exc)) from None
+
+
+def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: runtime.RunConfig, name: str,
                   quiet: bool = False) -> Path:
     """Compile the sources and build a release folder under prefix/releases; return it."""
     res = compile_sources([str(s) for s in sources], portability=False)
@@ -191,10 +199,6 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, name: 
         raise DeployError(f"the program does not compile ({len(res.diags.errors)} error(s))")
     if not res.program.configs:
         raise DeployError("the sources have no CONFIGURATION: nothing to run")
-    try:
-        cfg = runtime.load_config(config) if config else runtime.RunConfig()
-    except runtime.ConfigError as exc:
-        raise DeployError(str(exc)) from None
     digest = hashlib.sha256(res.c_text.encode()).hexdigest()[:10]
     rel_id = time.strftime("%Y%m%dT%H%M%S") + "-" + digest
     releases = prefix / "releases"
@@ -492,10 +496,7 @@ def _config(args, sources: list[Path]) -> Path | None:
 def cmd_service(args) -> int:
     sources = _sources(args)
     config = _config(args, sources)
-    try:
-        cfg = runtime.load_config(config) if config else runtime.RunConfig()
-    except runtime.ConfigError as exc:
-        raise DeployError(str(exc)) from None
+    cfg = load_run_config(config)
     simulated_refusal(config, cfg, args.simulated, "service")
     out: Path = args.out.resolve()
     prefix = (args.prefix or Path("/opt") / args.name).resolve()
@@ -504,7 +505,7 @@ def cmd_service(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if not args.quiet:
         print(f"plc deploy: run configuration {config or 'built-in defaults (none found)'}", file=sys.stderr)
-    release = build_release(out, sources, config, args.name, quiet=args.quiet)
+    release = build_release(out, sources, config, cfg, args.name, quiet=args.quiet)
     program = re.search(r"^program (\S+)", (release / "VERSION").read_text(), re.M).group(1)
     write_deployment(out, release, cfg, program, args.name, prefix, args.watchdog_sec, args.user)
     if not args.quiet:
@@ -528,12 +529,9 @@ def cmd_upgrade(args) -> int:
         raise DeployError(f"{prefix} has no current release (deploy with plc deploy service first)")
     sources = _sources(args)
     config = _config(args, sources)
-    try:
-        cfg = runtime.load_config(config) if config else runtime.RunConfig()
-    except runtime.ConfigError as exc:
-        raise DeployError(str(exc)) from None
+    cfg = load_run_config(config)
     simulated_refusal(config, cfg, args.simulated, "upgrade")
-    new = build_release(prefix, sources, config, args.name, quiet=args.quiet)
+    new = build_release(prefix, sources, config, cfg, args.name, quiet=args.quiet)
     result = compare(layout_of(running), layout_of(new))
     for note in result.notes:
         print(f"plc deploy: {note}", file=sys.stderr)
