@@ -255,11 +255,18 @@ def test_an_abort_at_the_handover_is_recovered_with_home_and_confirm(plc):
         assert s["FaultReason"] == -103 and s["Recovery"] == 3, s      # step 16: home, then confirm
         snapshots.append(mw_words(tags))
 
+        # where a CNC executing the handover's Z move would have stopped: part-way up, the spindle nose still in
+        # the holder the fork now carries (the simulated changer takes the host's report)
+        tags.write(HostPosZ=-350)
         ok(plc.host("clear"))
         refused = plc.host("T5 M6")
         assert refused.returncode == 1 and "toolchanger error -107" in refused.stdout, refused.stdout
         home = ok(plc.host("clear", "home"))
-        s = tags.read("Recovery", "ToolInSpindle", "UncertainTool", "SimSpindleTool")
+        # the Home sequence found the collet open: Z up to the clear height (P1 -5) first, then the arm (its only
+        # move; the host started from the reported Z -35)
+        assert re.findall(r"mailbox #\d+: (MOVEABS .*): done", home) == ["MOVEABS Z-5 (G53 G1, F 10 units/s)"], home
+        s = tags.read("Recovery", "ToolInSpindle", "UncertainTool", "SimSpindleTool", "HostPosZ")
+        assert s["HostPosZ"] == -50, s
         assert not s["Recovery"] & 1, s
         assert s["Recovery"] == 2 and s["ToolInSpindle"] == -1 and s["UncertainTool"] == 2, s
         assert "plc host confirm 2" in home, home

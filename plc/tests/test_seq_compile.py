@@ -168,3 +168,20 @@ def test_generated_text_stays_in_the_portable_subset(corpus_st):
         assert "(*" not in code and "*)" not in code  # no nested or broken comments
         assert not re.search(r"\(\s*\w+\s*:=\s*\d+", code.split("END_TYPE")[0])  # no enum values
         assert text.endswith("END_FUNCTION\n")
+
+
+def test_an_ifin_line_compiles_to_a_guarded_step(tmp_path):
+    home = tmp_path / "home.seq"
+    home.write_text("IFIN 20 1 MOVEABS Z P1\nHOME ROTARY\n")
+    index = tmp_path / "sequences.toml"
+    text = CONFIG_INDEX.read_text(encoding="utf-8").replace('home = "home.seq"', f'home = "{home}"')
+    for name in ("put", "get", "length"):
+        text = text.replace(f'"{name}.seq"', f'"{CONFIG_INDEX.parent / (name + ".seq")}"')
+    index.write_text(text)
+    assembly, diags = assemble(index)
+    assert assembly is not None, [d.render() for d in diags.items]
+    step = assembly.sequences[0].steps[0]
+    assert (step.opcode, step.guarded, step.guard_channel, step.guard_level) == (Opcode.MOVE_ABS, True, 20, True)
+    st = generate(assembly, "sequences.toml", "SequenceTables.st")
+    assert "stepData.guarded := TRUE;\n" in st and "stepData.guardChannel := 20;" in st
+    assert [f[0] for f in STEP_FIELDS][-3:] == ["guarded", "guardChannel", "guardLevel"]

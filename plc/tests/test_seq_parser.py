@@ -137,3 +137,15 @@ def test_identical_diagnostics_are_kept_once():
     diags.error("a.seq", 3, 1, "same")
     diags.warning("a.seq", 3, 1, "same")
     assert len(diags.items) == 2
+
+
+def test_ifin_guards_the_command_after_its_input_and_level():
+    command = only_command("IFIN 3 1 MOVEABS Z P1 / only with the collet open")
+    from plc.seq.model import IfIn
+    assert isinstance(command, IfIn)
+    assert (command.channel.value, command.level.value) == (3, 1)
+    assert isinstance(command.body, MoveAbs)
+    assert command.body.targets[0].axis == "Z" and isinstance(command.body.targets[0].value, PVar)
+    assert (command.span.col, command.body.span.col) == (1, 10)
+    message = only_command("IFIN 2 0 MESSAGE spindle / up").body
+    assert isinstance(message, Message) and message.text == "spindle"

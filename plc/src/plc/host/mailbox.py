@@ -99,7 +99,12 @@ class Mailbox:
         return {f"HostPos{a}": max(-32768, min(32767, round(self.position.get(a, 0.0) * 10))) for a in "XYZ"}
 
     def announce(self) -> None:
-        """MbxHostActive TRUE; a request already pending (the PLC answered nothing yet) is served by step()."""
+        """MbxHostActive TRUE; a request already pending (the PLC answered nothing yet) is served by step(). A host
+        that starts knows no position of its own: it starts where the last host reported the machine (HostPosX/Y/Z),
+        since nothing moved the machine in between (a recovery after an interrupted change starts there)."""
+        if not self.position and all(self.tags.has(n) for n in POSITION):
+            last = self.tags.read(*POSITION)
+            self.position = {n[-1]: int(last[n]) / 10 for n in POSITION}
         self.tags.write(**self.report_position())
         self.tags.write(MbxHostActive=True)
         self.say("mailbox: this host executes the sequences' requests (MbxHostActive)")

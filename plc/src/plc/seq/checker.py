@@ -8,7 +8,7 @@ per-tool Q variables resolves into one step list per tool; the generator shares 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from decimal import Decimal
 from typing import Callable
 
@@ -16,7 +16,7 @@ from .diagnostics import Diagnostics, format_ranges
 from .encoding import (AXES, DINT_MAX, INT_MAX, MAX_MESSAGE, MAX_STEPS, MAX_TOOLS, P_COUNT, Q_COUNT, SCALE, Kind,
                        Opcode, Step, channel_address)
 from .index import IoMap, Values
-from .model import (AxisTarget, Command, Delay, Feedrate, HomeRotary, Message, MoveAbs, MoveToEdge, Number, Out,
+from .model import (AxisTarget, Command, Delay, Feedrate, HomeRotary, IfIn, Message, MoveAbs, MoveToEdge, Number, Out,
                     PositionRotary, PVar, QVar, SequenceFile, Span, Spindle, ToolQVar, Value, WaitIn)
 
 
@@ -206,6 +206,8 @@ class _Checker:
     # --- commands ---
     def steps(self, command: Command) -> dict[int, Step] | None:
         """The command's step for each tool, or None when it has an error (already reported)."""
+        if isinstance(command, IfIn):
+            return self.guarded(command)
         base = {"line": command.line, "source": command.source.strip()}
         kind = self.ctx.kind
         if isinstance(command, Out):
@@ -257,6 +259,15 @@ class _Checker:
             opcode = Opcode.SPINDLE_CW if command.mode == "CW" else Opcode.SPINDLE_CCW
             return None if speed is None else {t: Step(opcode, value=speed[t], **base) for t in self.tools}
         raise AssertionError(f"no checker for {type(command).__name__}")
+
+    def guarded(self, command: IfIn) -> dict[int, Step] | None:
+        """The guarded command's steps, each skipped at run time unless the input reads the level."""
+        channel = self.channel(command.channel, output=False)
+        steps = self.steps(command.body)
+        if channel is None or steps is None:
+            return None
+        level = command.level.value == 1
+        return {t: replace(step, guarded=True, guard_channel=channel, guard_level=level) for t, step in steps.items()}
 
     def same(self, step: Step) -> dict[int, Step]:
         return {t: step for t in self.tools}

@@ -93,6 +93,9 @@ STEP_FIELDS = (
     ("c", "DINT", "C, as x"),
     ("message", "INT", "MESSAGE / DIALOG text number for F_SequenceMessage; 0 = none"),
     ("expectEdge", "BOOL", "MOVETOEDGE: TRUE = no edge fails (Length Measurement), FALSE = an edge fails (Put Tool)"),
+    ("guarded", "BOOL", "IFIN: the step runs only if input guardChannel reads guardLevel when it begins"),
+    ("guardChannel", "INT", "IFIN input channel n = %IX(n / 8).(n mod 8)"),
+    ("guardLevel", "BOOL", "IFIN level that lets the step run"),
 )
 
 
@@ -111,6 +114,9 @@ class Step:
     axes: tuple[int, int, int, int, int, int] = (0, 0, 0, 0, 0, 0)
     text: str = ""  # MESSAGE / DIALOG text; the generator numbers the texts
     expect_edge: bool = False
+    guarded: bool = False  # IFIN: skipped unless input guard_channel reads guard_level when the step begins
+    guard_channel: int = 0
+    guard_level: bool = False
 
 
 @dataclass(frozen=True)

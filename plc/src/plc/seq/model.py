@@ -143,6 +143,15 @@ class Spindle(Command):
 
 
 @dataclass(frozen=True)
+class IfIn(Command):
+    """`IFIN n v command`: the command runs only if input n reads v when its step begins (else it is skipped)."""
+
+    channel: Number
+    level: Number
+    body: Command  # never an IfIn itself
+
+
+@dataclass(frozen=True)
 class SequenceFile:
     """A parsed sequence file: its name as shown in diagnostics, its lines and its commands in order."""
 

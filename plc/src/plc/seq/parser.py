@@ -14,8 +14,8 @@ from typing import Callable
 
 from .diagnostics import Diagnostics
 from .lexer import Word, rest_of_line, split_words
-from .model import (AxisTarget, Command, Delay, Feedrate, HomeRotary, Message, MoveAbs, MoveToEdge, Number, Out,
-                    PositionRotary, PVar, QVar, SequenceFile, Span, Spindle, ToolQVar, Value, WaitIn)
+from .model import (AxisTarget, Command, Delay, Feedrate, HomeRotary, IfIn, Message, MoveAbs, MoveToEdge, Number,
+                    Out, PositionRotary, PVar, QVar, SequenceFile, Span, Spindle, ToolQVar, Value, WaitIn)
 
 AXIS_LETTERS = "XYZABC"
 
@@ -32,6 +32,7 @@ USAGE = {
     "MOVETOEDGE": "MOVETOEDGE INP input level axis distance",
     "FEEDRATE": "FEEDRATE rate",
     "SPINDLE": "SPINDLE CW rpm | SPINDLE CCW rpm | SPINDLE STOP | SPINDLE OFF",
+    "IFIN": "IFIN input level command",
 }
 
 VALUE_HINT = ("a value is a number (10, -5.25), a P variable (P4), a Q variable of this tool (Q2) "
@@ -263,6 +264,27 @@ def _spindle(p: _LineParser, kw: Word, words: list[Word]) -> Command | None:
     return None if speed is None else Spindle(p.span(kw), p.text, mode, speed)
 
 
+def _ifin(p: _LineParser, kw: Word, words: list[Word]) -> Command | None:
+    usage = f"usage: {USAGE['IFIN']}, e.g. IFIN 20 1 MOVEABS Z P1"
+    if len(words) < 4:
+        p.error(words[-1].end_col, 1, "IFIN takes an input, a level and the command it guards", hint=usage)
+        return None
+    channel, level = p.literal(words[1], "input number"), p.level(words[2])
+    keyword = words[3]
+    if keyword.text.upper() == "IFIN":
+        p.error(keyword.col, keyword.width, "IFIN guards one command, not another IFIN",
+                hint="one condition per line: two conditions need two inputs wired into one")
+        return None
+    handler = _COMMANDS.get(keyword.text.upper())
+    if handler is None:
+        _unknown_command(p, keyword)
+        return None
+    body = handler(p, keyword, words[3:])
+    if channel is None or level is None or body is None:
+        return None
+    return IfIn(p.span(kw), p.text, channel, level, body)
+
+
 _COMMANDS: dict[str, Callable[[_LineParser, Word, list[Word]], Command | None]] = {
     "OUT": _out,
     "WAITIN": _waitin,
@@ -275,6 +297,7 @@ _COMMANDS: dict[str, Callable[[_LineParser, Word, list[Word]], Command | None]] 
     "MOVETOEDGE": _movetoedge,
     "FEEDRATE": _feedrate,
     "SPINDLE": _spindle,
+    "IFIN": _ifin,
 }
 
 

@@ -170,6 +170,12 @@ def _step_assignments(step: Step, messages: dict[str, int]) -> list[str]:
         out.append(f"stepData.message := {messages[step.text]};")
     if step.expect_edge:
         out.append(f"stepData.expectEdge := {st_bool(step.expect_edge)};")
+    if step.guarded:
+        out.append(f"stepData.guarded := {st_bool(step.guarded)};")
+        if step.guard_channel:
+            out.append(f"stepData.guardChannel := {step.guard_channel};")
+        if step.guard_level:
+            out.append(f"stepData.guardLevel := {st_bool(step.guard_level)};")
     return out
 
 
