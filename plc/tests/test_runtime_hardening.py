@@ -203,7 +203,10 @@ def test_a_connection_storm_logs_one_line_per_kind_per_second_with_counts(binary
         for kind in (CONNECTED, CLOSED, RECLAIMED):
             times = [t for t, _, _ in events(rt.log, kind)]
             gaps = [(b - a) % 86400 for a, b in zip(times, times[1:])]
-            assert all(g >= 0.999 for g in gaps), f"two '{kind}' lines less than a second apart:\n{rt.log}"
+            # the gate holds a kind for 1 s of CLOCK_MONOTONIC; a line's stamp is the wall clock in ms, read when
+            # the line is formatted, after the gate's decision: a busy machine delays one stamp by a few ms (a CI
+            # run saw 0.998 s). 300 events in about a second without the gate would be lines milliseconds apart.
+            assert all(g >= 0.9 for g in gaps), f"two '{kind}' lines less than a second apart:\n{rt.log}"
         assert len(events(rt.log, CONNECTED, CLOSED, RECLAIMED)) < storm / 10, rt.log
 
 
