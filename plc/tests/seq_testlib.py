@@ -9,9 +9,9 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from plc.seq.assemble import Assembly, check_set
-from plc.seq.cli import main
-from plc.seq.diagnostics import Diagnostics
+from atc.seq.assemble import Assembly, check_set
+from atc.seq.cli import main
+from atc.seq.diagnostics import Diagnostics
 
 TESTS = Path(__file__).resolve().parent
 REPO = TESTS.parent.parent

@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 from plc import ast as A
-from plc import deploy, plcopen
+from atc import deploy
+from plc import plcopen
 from plc.diagnostics import Diagnostics
 from plc.driver import compile_sources
 from plc.parser import parse

@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from harness import compile_st
-from plc import machine
+from atc import machine
 from plc.diagnostics import Diagnostic, Pos, Severity
-from plc.seq.parser import parse_text
+from atc.seq.parser import parse_text
 
 
 def test_the_compiler_reports_the_shared_type_gcc_style():
@@ -18,7 +18,7 @@ def test_the_compiler_reports_the_shared_type_gcc_style():
 
 
 def test_the_sequence_tools_report_the_shared_type_and_leave_out_a_zero_line():
-    from plc.seq.diagnostics import Diagnostics
+    from atc.seq.diagnostics import Diagnostics
     diags = Diagnostics()
     parse_text("t.seq", "DELAY 10\nOUT 40x 1\n", diags)
     (d,) = diags.errors

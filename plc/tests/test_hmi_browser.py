@@ -28,9 +28,9 @@ import pytest
 import rt_harness as h
 from plc import driver, runtime
 from plc.hmi.monitor import Monitor
-from plc.host.modbus import ModbusClient
-from plc.host.session import Session, Timeouts
-from plc.host.tags import load_map
+from plc.modbus import ModbusClient
+from atc.host.session import Session, Timeouts
+from atc.host.tags import load_map
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "build" / "artifacts"

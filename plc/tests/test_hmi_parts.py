@@ -6,7 +6,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from plc.hmi import mapinfo, status
+from atc.hmi import mapinfo
+from plc.hmi import status
 from plc.hmi import cli as monitor_cli
 from plc.resources import RUNTIME_SRC
 
@@ -67,7 +68,7 @@ def _page_client(tmp_path):
     """The page's web app against a PLC that is not there (the guards answer before any PLC is asked)."""
     import socket
     from aiohttp.test_utils import TestClient, TestServer
-    from plc.hmi import server
+    from atc.hmi import server
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

@@ -105,7 +105,7 @@ def test_the_host_executes_the_record_one_read_shows_whatever_the_other_block_sh
     nothing while the record is the answered one and exactly the record's request once it is new."""
     from itertools import product
 
-    from plc.host.mailbox import MOVEABS, RESULT_OK, Mailbox
+    from atc.host.mailbox import MOVEABS, RESULT_OK, Mailbox
     old, new = _request(25, MOVEABS, 3, 0), _request(26, MOVEABS, 4, -5000)
     head = ("MbxRequestId", "MbxOpcode", "MbxText", "MbxAxisMask")
     executed = 0
@@ -126,7 +126,7 @@ def test_the_host_executes_the_record_one_read_shows_whatever_the_other_block_sh
 
 
 def test_a_request_withdrawn_while_executed_is_not_answered():
-    from plc.host.mailbox import MOVEABS, Mailbox
+    from atc.host.mailbox import MOVEABS, Mailbox
     shown = _request(9, MOVEABS, 4, -5000)
     tags = FakeTags(dict(shown, MbxArgsOpcode=0))        # the PLC withdrew it (abort) before the host answered
     said: list[str] = []
@@ -138,8 +138,8 @@ def test_a_request_withdrawn_while_executed_is_not_answered():
 def test_the_host_reads_the_whole_record_in_one_request():
     """The session's poll reads the record's registers in one Modbus request, so the runtime's between-scans
     answer makes it one request's record; a map whose record is split is refused when the mailbox is attached."""
-    from plc.host.mailbox import RECORD, REQUEST
-    from plc.host.tags import Tags, load_map
+    from atc.host.mailbox import RECORD, REQUEST
+    from atc.host.tags import Tags, load_map
     rmap = load_map(REPO / "modbus_map" / "map.toml")
     tags = Tags(rmap, client=None)
     watch = tuple(s.name for s in rmap.signals) + REQUEST

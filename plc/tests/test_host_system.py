@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from plc.host.modbus import ModbusClient
-from plc.host.tags import Tags, load_map
+from plc.modbus import ModbusClient
+from atc.host.tags import Tags, load_map
 
 REPO = Path(__file__).resolve().parents[2]
 RMAP = load_map(REPO / "modbus_map" / "map.toml")
@@ -182,7 +182,7 @@ def test_the_tool_in_the_spindle_survives_a_restart_of_the_plc(tmp_path):
 
 def _located(first: int, last: int) -> tuple[int, int]:
     """The first and last holding register of the map's signals between first and last (Signal.words each)."""
-    from plc.host.tags import load_map
+    from atc.host.tags import load_map
     regs = [a for sig in load_map(REPO / "modbus_map" / "map.toml").signals
             if sig.table == "holding_register" and first <= sig.address <= last
             for a in range(sig.address, sig.address + sig.words)]

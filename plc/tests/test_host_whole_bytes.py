@@ -8,8 +8,8 @@ import threading
 from pathlib import Path
 
 from host_fake_plc import Addr, Behaviour, FakePlc
-from plc.host import cli
-from plc.host.tags import load_map
+from atc.host import cli
+from atc.host.tags import load_map
 
 REPO = Path(__file__).resolve().parents[2]
 MAP = REPO / "modbus_map" / "map.toml"

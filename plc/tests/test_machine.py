@@ -128,7 +128,7 @@ def test_a_project_copy_inside_the_repository_is_its_own_project(tmp_path):
     """A copy of the project without scan tests under another project's tree (the LinuxCNC e2e switches one to the
     rack example under build/) is the root for `plc` commands run in it; before, the search for st_src/ with
     iec_tests/ went up to the repository and `plc machine use` rewrote the repository's own machine."""
-    from plc.testrunner import project_root
+    from plc.project import project_root
     outer = tmp_path / "repo"
     for rel in ("st_src", "iec_tests", "modbus_map", "configs"):
         (outer / rel).mkdir(parents=True)

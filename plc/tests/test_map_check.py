@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from plc.diagnostics import Diagnostics
-from plc.map import cli as map_cli
-from plc.map.generate import drift, load_and_check, outputs, write
+from atc.map import cli as map_cli
+from atc.map.generate import drift, load_and_check, outputs, write
 
 REPO = Path(__file__).resolve().parents[2]
 GENERATED = ["hmi_tags", "configs/machine.toml", "configs/sequences", "configs/linuxcnc/atc_mb2hal.ini", "configs/linuxcnc/atc_iov2.hal",

@@ -14,10 +14,10 @@ import pytest
 from plc import ast as A
 from plc.diagnostics import Diagnostics
 from plc.driver import compile_sources
-from plc.map import gen_st, iov2pins
-from plc.map.gen_linuxcnc import plan
-from plc.map.generate import load_and_check, outputs
-from plc.map.model import iec_address
+from atc.map import gen_st, iov2pins
+from atc.map.gen_linuxcnc import plan
+from atc.map.generate import load_and_check, outputs
+from atc.map.model import iec_address
 from plc.parser import parse
 from plc.runtime import load_config
 

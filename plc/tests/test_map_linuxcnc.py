@@ -25,8 +25,8 @@ from pathlib import Path
 import pytest
 
 from plc.diagnostics import Diagnostics
-from plc.map import gen_st
-from plc.map.generate import IOV2_HAL, MB2HAL_INI, load_and_check, outputs
+from atc.map import gen_st
+from atc.map.generate import IOV2_HAL, MB2HAL_INI, load_and_check, outputs
 
 REPO = Path(__file__).resolve().parents[2]
 FIXTURES = Path(__file__).resolve().parent / "linuxcnc_fixtures"

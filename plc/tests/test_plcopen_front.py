@@ -361,7 +361,7 @@ def test_plc_run_serves_a_ladder_program_from_xml(tmp_path):
     import signal
     import socket
     import time
-    from plc.host.modbus import ModbusClient
+    from plc.modbus import ModbusClient
     b = Body().left_rail(1, points=2).contact(2, "firstScan", 1).coil(3, "lamp", 2, storage="set") \
         .coil(4, "firstScan", 3, x=400, storage="reset").coil(5, "done", 4, x=500, storage="set") \
         .contact(6, "lamp", 1, y=40).coil(7, "echo", 6, y=40).right_rail(8, [5, 7])

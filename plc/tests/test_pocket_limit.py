@@ -1,4 +1,4 @@
-"""The Logosol limit of 50 pockets has one home, plc.machine.MAX_POCKETS; the ST and the map, which cannot import it
+"""The Logosol limit of 50 pockets has one home, atc.machine.MAX_POCKETS; the ST and the map, which cannot import it
 (MATIEC takes no constant as an array bound), are checked against it here: the T_PocketTable type, every
 MaxPockets constant (and RetainedWords = 4 + MaxPockets), the map's PocketTool series, the sequences' tool limit.
 No pocket table of the application is declared with a literal bound."""
@@ -8,8 +8,8 @@ import re
 import tomllib
 from pathlib import Path
 
-from plc.machine import MAX_POCKETS
-from plc.seq.encoding import MAX_TOOLS
+from atc.machine import MAX_POCKETS
+from atc.seq.encoding import MAX_TOOLS
 
 REPO = Path(__file__).resolve().parents[2]
 ST_DIRS = [REPO / "st_src", REPO / "iec_tests"]

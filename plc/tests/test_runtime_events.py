@@ -2,7 +2,7 @@
 carousel: tool change (from, to, duration), prepare, fault raised and cleared with its text from
 reason_codes.toml, abort with its reason, E-stop, homing, host link lost and restored.
 
-The events file is the one `plc run` writes from the register map (plc.hmi.mapinfo); the host is plc.host's
+The events file is the one `plc run` writes from the register map (atc.hmi.mapinfo); the host is atc.host's
 Session, the E-stop a forced input (the simulated plant's SimulatedPlant input off: the application then reads
 the real E-stop chain, which is open).  Every wait is bounded (SLOW); no verdict depends on speed.
 """
@@ -17,10 +17,10 @@ import pytest
 
 import rt_harness as h
 from plc import driver, runtime
-from plc.hmi import mapinfo
+from atc.hmi import mapinfo
 from plc.hmi.monitor import Monitor
-from plc.host.modbus import ModbusClient
-from plc.host.session import Session, Timeouts
+from plc.modbus import ModbusClient
+from atc.host.session import Session, Timeouts
 
 REPO = Path(__file__).resolve().parents[2]
 TOKEN = "events-test-token-0123456789"

@@ -32,9 +32,9 @@ pytest.importorskip("pymodbus", reason="pymodbus is a test dependency (pip insta
 from io_module import COIL_COUNT, DI_COUNT, IoModule, Mechanics, Wiring  # noqa: E402
 from rt_harness import SANITIZE, SANITIZER_ENV, SLOW  # noqa: E402
 
-from plc.host.modbus import ModbusClient  # noqa: E402
+from plc.modbus import ModbusClient  # noqa: E402
 from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS  # noqa: E402
-from plc.host.tags import Tags, load_map  # noqa: E402
+from atc.host.tags import Tags, load_map  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 MAP_FILE = REPO / "modbus_map" / "map.toml"

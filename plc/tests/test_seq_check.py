@@ -7,12 +7,12 @@ from pathlib import Path
 
 import pytest
 
-from plc.seq.assemble import check_files
-from plc.seq.checker import Context, check_sequence
-from plc.seq.diagnostics import Diagnostics
-from plc.seq.encoding import Kind, Opcode
-from plc.seq.index import load_index
-from plc.seq.parser import parse_text
+from atc.seq.assemble import check_files
+from atc.seq.checker import Context, check_sequence
+from atc.seq.diagnostics import Diagnostics
+from atc.seq.encoding import Kind, Opcode
+from atc.seq.index import load_index
+from atc.seq.parser import parse_text
 from seq_testlib import CONFIG_INDEX, CORPUS, VALID_INDEX, assemble, load_manifest, run_cli
 
 BROKEN = CORPUS / "broken"

@@ -62,7 +62,7 @@ def test_module_entry_point_runs_without_traceback(tmp_path):
     bad = tmp_path / "bad.seq"
     bad.write_bytes(b"OUT 3 1\n\xff\xfe broken bytes\n")
     env = dict(os.environ, PYTHONPATH=str(REPO / "plc" / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.run([sys.executable, "-m", "plc.seq", "check", str(bad)], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "atc.seq", "check", str(bad)], capture_output=True, text=True,
                           env=env, timeout=60)
     assert proc.returncode == 1
     assert "Traceback" not in proc.stderr

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from plc.seq.encoding import STEP_FIELDS, Kind, Opcode
-from plc.seq.stgen import generate
+from atc.seq.encoding import STEP_FIELDS, Kind, Opcode
+from atc.seq.stgen import generate
 from seq_testlib import CONFIG_INDEX, CORPUS, GENERATED, VALID_INDEX, assemble, run_cli
 
 

@@ -6,11 +6,11 @@ from decimal import Decimal
 
 import pytest
 
-from plc.seq.diagnostics import Diagnostics, Severity, seq_diagnostic
-from plc.seq.lexer import split_words, strip_comment
-from plc.seq.model import (Delay, Feedrate, HomeRotary, Message, MoveAbs, MoveToEdge, Number, Out, PositionRotary,
+from atc.seq.diagnostics import Diagnostics, Severity, seq_diagnostic
+from atc.seq.lexer import split_words, strip_comment
+from atc.seq.model import (Delay, Feedrate, HomeRotary, Message, MoveAbs, MoveToEdge, Number, Out, PositionRotary,
                            PVar, QVar, Spindle, ToolQVar, WaitIn)
-from plc.seq.parser import parse_text
+from atc.seq.parser import parse_text
 
 
 def parse(text: str):
@@ -141,7 +141,7 @@ def test_identical_diagnostics_are_kept_once():
 
 def test_ifin_guards_the_command_after_its_input_and_level():
     command = only_command("IFIN 3 1 MOVEABS Z P1 / only with the collet open")
-    from plc.seq.model import IfIn
+    from atc.seq.model import IfIn
     assert isinstance(command, IfIn)
     assert (command.channel.value, command.level.value) == (3, 1)
     assert isinstance(command.body, MoveAbs)

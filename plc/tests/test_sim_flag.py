@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from plc.host.tags import load_map
+from atc.host.tags import load_map
 
 REPO = Path(__file__).resolve().parents[2]
 SIG = load_map(REPO / "modbus_map" / "map.toml").signal("SimulatedPlant")

@@ -9,11 +9,13 @@ import argparse
 import os
 import sys
 import time
+from importlib import import_module
 from pathlib import Path
 
-from . import __version__, runtime
+from . import __version__, extensions, retainfile, runtime, testrunner
 from .diagnostics import InternalError
 from .driver import UserError, compile_c, compile_sources, print_diagnostics
+from .project import project_root, refused_by_preflight
 
 
 def cmd_check(args) -> int:
@@ -70,16 +72,13 @@ def run_configuration(args, root: Path | None) -> Path | None:
 
 
 def cmd_run(args) -> int:
-    from .testrunner import project_root
     root = project_root()
     paths = args.paths or ([str(root / "st_src")] if root else [])
     if not paths:
         raise UserError("no ST sources given and no project st_src/ found from here")
     in_project = root is not None and all(_inside(p, root) for p in paths)
-    if in_project:
-        from .freshness import refuse_if_stale
-        if refuse_if_stale(root, "plc run"):
-            return 1
+    if in_project and refused_by_preflight(root, "plc run"):
+        return 1
     res = compile_sources(paths, portability=False)
     print_diagnostics(res, quiet=True)
     if not res.ok:
@@ -101,26 +100,15 @@ def cmd_run(args) -> int:
 
 
 def _events_file(root: Path, build_dir: Path) -> Path | None:
-    """The runtime's --events description, from the project's register map (None when it cannot be read)."""
-    from .hmi import mapinfo
-    from .host.tags import MapError
-    map_path = root / "modbus_map" / "map.toml"
-    if not map_path.is_file():
-        return None
-    try:
-        text = mapinfo.events_description(mapinfo.load(map_path))
-    except MapError as e:
-        print(f"plc run: no application events (the register map has errors):\n{e}", file=sys.stderr)
-        return None
-    out = build_dir / "events.txt"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if not out.exists() or out.read_text() != text:
-        out.write_text(text)
-    return out
+    """The runtime's --events description, from the first extension that gives one for this project."""
+    for describe in extensions.load().run_events:
+        events = describe(root, build_dir)
+        if events is not None:
+            return events
+    return None
 
 
 def cmd_retain_show(args) -> int:
-    from . import retainfile
     try:
         f = retainfile.read(args.file)
     except retainfile.RetainFileError as e:
@@ -158,10 +146,10 @@ def parser() -> argparse.ArgumentParser:
     add_compile_opts(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.set_defaults(func=cmd_build)
-    from . import testrunner
     testrunner.add_parser(sub)
-    from . import machine
-    machine.add_parser(sub)
+    ext = extensions.load()
+    for add_parser in ext.parsers:
+        add_parser(sub)
     p = sub.add_parser("run", help="build and run the soft-PLC (Modbus/TCP, OpenPLC map)", description=
                        "Compile the ST program (default: the project's st_src/) and run it as a soft-PLC serving "
                        "Modbus/TCP with OpenPLC's address map. Ctrl-C stops it: outputs go safe, RETAIN data "
@@ -180,33 +168,32 @@ def parser() -> argparse.ArgumentParser:
                                     "version, not used by the present one) are marked.")
     q.add_argument("file", type=Path, metavar="FILE", help="the retain file (e.g. var/plc.retain)")
     q.set_defaults(func=cmd_retain_show)
-    sub.add_parser("seq", help="check and compile tool-change sequences (plc seq --help)", add_help=False)
-    sub.add_parser("map", help="check the register map and generate from it (plc map --help)", add_help=False)
-    sub.add_parser("host", help="CNC host client: plc host \"T5 M6\" (plc host --help)", add_help=False)
-    sub.add_parser("deploy", help="bundle for OpenPLC (plc deploy openplc), install and upgrade our soft-PLC as a "
-                   "systemd service (plc deploy service|upgrade|rollback)", add_help=False)
-    sub.add_parser("status", help="the soft-PLC's diagnostic block: state, scan times, Modbus counters "
-                   "(plc status --help)", add_help=False)
-    sub.add_parser("monitor", help="watch, write and force variables of the running PLC (plc monitor --help)",
-                   add_help=False)
-    sub.add_parser("hmi", help="the live toolchanger page in a browser (plc hmi --help)", add_help=False)
-    sub.add_parser("import", help="PLCopen XML to ST files: plc import plcopen FILE.xml --out DIR", add_help=False)
-    sub.add_parser("export", help="ST project to PLCopen XML: plc export plcopen --out FILE.xml", add_help=False)
+    for name, (text, _) in TOOLCHAIN_DELEGATED.items():
+        sub.add_parser(name, help=text, add_help=False)
+    for command in ext.commands.values():
+        sub.add_parser(command.name, help=command.help, add_help=False)
     return ap
 
 
-# Subcommands with their own argument parsers (each module has main(argv) -> int).
-DELEGATED = {"seq": ".seq.cli", "map": ".map.cli", "host": ".host.cli", "deploy": ".deploy",
-             "import": ".plcopen.importer", "export": ".plcopen.exporter",
-             "status": ".hmi.status", "monitor": ".hmi.cli", "hmi": ".hmi.server"}
+# The toolchain's subcommands with their own argument parsers (each module has main(argv) -> int); an
+# extension's subcommands are in extensions.load().commands.
+TOOLCHAIN_DELEGATED = {
+    "status": ("the soft-PLC's diagnostic block: state, scan times, Modbus counters (plc status --help)",
+               "plc.hmi.status"),
+    "monitor": ("watch, write and force variables of the running PLC (plc monitor --help)", "plc.hmi.cli"),
+    "import": ("PLCopen XML to ST files: plc import plcopen FILE.xml --out DIR", "plc.plcopen.importer"),
+    "export": ("ST project to PLCopen XML: plc export plcopen --out FILE.xml", "plc.plcopen.exporter"),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        if argv and argv[0] in DELEGATED:
-            from importlib import import_module
-            return import_module(DELEGATED[argv[0]], __package__).main(argv[1:])
+        if argv and argv[0] in TOOLCHAIN_DELEGATED:
+            return import_module(TOOLCHAIN_DELEGATED[argv[0]][1]).main(argv[1:])
+        command = extensions.load().commands.get(argv[0]) if argv else None
+        if command is not None:
+            return command.main(argv[1:])
         ap = parser()
         args = ap.parse_args(argv)
         if not getattr(args, "func", None):

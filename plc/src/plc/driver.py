@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import re
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -17,13 +17,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import ast as A
+from . import plcopen, sema
+from .codegen import generate as gen_c
 from .diagnostics import Diagnostics, SourceSet
 from .parser import parse
-
-from .resources import INCLUDE, STDLIB
-
-STANDARD_FBS = STDLIB / "standard_fbs.st"
-TESTLIB = STDLIB / "testing"
+from .portability import lint
+from .resources import INCLUDE, STANDARD_FBS, STDLIB, TESTLIB
 
 TEST_DECL = re.compile(r"\bFUNCTION_BLOCK\s+TEST_", re.IGNORECASE)
 
@@ -49,8 +48,7 @@ class CompileResult:
 
 def is_source(path: Path) -> bool:
     """A source file the compiler reads: ST, or a PLCopen XML project."""
-    from .plcopen import looks_like_plcopen
-    return path.suffix.lower() == ".st" or looks_like_plcopen(path)
+    return path.suffix.lower() == ".st" or plcopen.looks_like_plcopen(path)
 
 
 def collect_files(paths: list[str | os.PathLike]) -> list[Path]:
@@ -111,7 +109,6 @@ def load_user_file(path: Path, diags: Diagnostics, sources: SourceSet):
     name = display_name(path)
     if path.suffix.lower() != ".xml":
         return name, read_source(path), None
-    from . import plcopen
     data = read_bytes(path)
     sources.add(name, decode(data))
     tr = plcopen.translate(name, data, diags)
@@ -151,7 +148,6 @@ SEMANTIC_PASSES = ("declarations", "types", "scopes", "configuration", "external
 def analyze(files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[str] | None = None,
             test_build: bool = False):
     """The typed program (sema.Program): every semantic pass run over `files`, in SEMANTIC_PASSES order."""
-    from . import sema
     return sema.analyze(files, diags, SEMANTIC_PASSES, builtin_files, test_build)
 
 
@@ -159,9 +155,6 @@ def analyze(files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[st
 def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False, portability: bool = True,
                     target: str | None = None, generate: bool = True,
                     extra_texts: list[tuple[str, str]] | None = None) -> CompileResult:
-    from .codegen import generate as gen_c
-    from .portability import lint
-
     diags = Diagnostics(portability=portability)
     sources = SourceSet()
     result = CompileResult(diags, sources)

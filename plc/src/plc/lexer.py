@@ -8,11 +8,10 @@ input; an unknown character becomes an error diagnostic and is skipped.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
-from . import portability
 from .diagnostics import Diagnostics, Pos
+from .facts import Fact, fact
 
 KEYWORDS = frozenset("""
 FUNCTION END_FUNCTION FUNCTION_BLOCK END_FUNCTION_BLOCK PROGRAM END_PROGRAM
@@ -74,7 +73,7 @@ class Lexer:
         self.src = text
         self.file = filename
         self.diags = diags
-        self.facts: list[portability.Fact] = facts if facts is not None else []   # for the portability pass
+        self.facts: list[Fact] = facts if facts is not None else []   # for the portability pass
         self.i = 0
         self.line = 1
         self.col = 1
@@ -108,7 +107,7 @@ class Lexer:
             elif c == "(" and self.peek(1) == "*":
                 self.block_comment()
             elif c == "/" and self.peek(1) == "/":
-                self.facts.append(portability.fact("comment-line", self.pos()))
+                self.facts.append(fact("comment-line", self.pos()))
                 while self.i < len(self.src) and self.peek() != "\n":
                     self.advance()
             elif c == "/" and self.peek(1) == "*":
@@ -135,7 +134,7 @@ class Lexer:
         self.skip_comment("(*", "*)")
 
     def c_comment(self) -> None:
-        self.facts.append(portability.fact("comment-block", self.pos()))
+        self.facts.append(fact("comment-block", self.pos()))
         self.skip_comment("/*", "*/")
 
     def skip_comment(self, opener: str, closer: str) -> None:
@@ -151,7 +150,7 @@ class Lexer:
 
     def pragma(self) -> None:
         start = self.pos()
-        self.facts.append(portability.fact("pragma", start))
+        self.facts.append(fact("pragma", start))
         while self.i < len(self.src) and self.peek() != "}":
             self.advance()
         if self.i >= len(self.src):
@@ -268,7 +267,7 @@ class Lexer:
     def string(self, quote: str) -> None:
         start, pos = self.i, self.pos()
         if quote == '"':
-            self.facts.append(portability.fact("wstring", pos))
+            self.facts.append(fact("wstring", pos))
         self.advance()
         out = []
         while True:

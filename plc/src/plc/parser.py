@@ -12,8 +12,8 @@ parser always terminates.
 from __future__ import annotations
 
 from . import ast as A
-from . import portability
 from .diagnostics import Diagnostics, Pos
+from .facts import Fact, fact
 from .lexer import Token, tokenize
 
 MAX_DEPTH = 120
@@ -47,7 +47,7 @@ class Parser:
         self.k = 0
         self.file = filename
         self.diags = diags
-        self.facts: list[portability.Fact] = facts if facts is not None else []   # for the portability pass
+        self.facts: list[Fact] = facts if facts is not None else []   # for the portability pass
         self.depth = 0
 
     # -- token helpers ------------------------------------------------------------
@@ -160,7 +160,7 @@ class Parser:
         if t.is_kw("CONFIGURATION"):
             return self.configuration()
         if t.is_kw("VAR_GLOBAL"):
-            self.facts.append(portability.fact("global", t.pos))
+            self.facts.append(fact("global", t.pos))
             return self.var_block()
         if t.is_kw("INTERFACE", "METHOD"):
             self.diags.error(t.pos, f"{t.value} is not supported (IEC 61131-3 edition 3 / not in MATIEC)",
@@ -945,6 +945,6 @@ class Parser:
 
 def parse(text: str, filename: str, diags: Diagnostics) -> A.SourceFile:
     """The file's AST; the portability facts of the lexer and the parser ride on its `facts`."""
-    facts: list[portability.Fact] = []
+    facts: list[Fact] = []
     tokens = tokenize(text, filename, diags, facts)
     return Parser(tokens, filename, diags, facts).parse_file()

@@ -10,17 +10,9 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent
 STDLIB = PACKAGE / "stdlib"                      # ST and C of the standard library, the ST test library
+STANDARD_FBS = STDLIB / "standard_fbs.st"        # the standard function blocks (TON, R_TRIG, CTU, ...) in ST
+TESTLIB = STDLIB / "testing"                     # what a `plc test` build adds: ST_TestContext, the ASSERT_ functions
 DATA = PACKAGE / "data"                          # reference lists (OpenPLC's reserved identifiers, ...)
 NATIVE = PACKAGE / "native"
 INCLUDE = NATIVE / "include"                     # plc_abi.h: the contract between generated C and every host
 RUNTIME_SRC = NATIVE / "runtime"                 # the soft-PLC runtime's C sources
-
-PROJECT_MARKERS = ("st_src", "modbus_map")
-
-
-def source_checkout() -> Path | None:
-    """The repository this package was installed from (editable install), if it is one: None for a wheel."""
-    for parent in PACKAGE.parents:
-        if all((parent / m).is_dir() for m in PROJECT_MARKERS):
-            return parent
-    return None

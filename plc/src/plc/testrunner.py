@@ -17,7 +17,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .driver import STDLIB, UserError, cc, compile_sources, content_hash, print_diagnostics, INCLUDE
+from .driver import INCLUDE, STDLIB, UserError, cc, compile_sources, content_hash, print_diagnostics
+from .project import project_root, refused_by_preflight
 from .resources import RUNTIME_SRC
 
 # The scan core the runtime uses: `plc test` runs every scan through it.
@@ -42,20 +43,6 @@ class TestResult:
     @property
     def passed(self) -> bool:
         return self.status == "PASS"
-
-
-PROJECT_MARKS = ("iec_tests", "modbus_map", "configs/machine.toml")
-
-
-def project_root(start: Path | None = None) -> Path | None:
-    """The nearest directory at or above `start` (default: here) holding st_src/ and one of PROJECT_MARKS: a
-    project copy without scan tests (e.g. one switched to an example machine under build/) is its own project,
-    not part of the repository around it."""
-    p = (start or Path.cwd()).resolve()
-    for q in (p, *p.parents):
-        if (q / "st_src").is_dir() and any((q / mark).exists() for mark in PROJECT_MARKS):
-            return q
-    return None
 
 
 def fmt_time(ns: int) -> str:
@@ -202,11 +189,9 @@ def cmd_test(args) -> int:
     if not paths:
         raise UserError("no test paths given and no project (st_src/ and iec_tests/) found from here")
     src = args.src if args.src is not None else ([str(root / "st_src")] if root else [])
-    if root is not None and args.src is None:
-        from .freshness import refuse_if_stale
-        if refuse_if_stale(root, "plc test"):
-            print("0 passed, 1 failed")
-            return 1
+    if root is not None and args.src is None and refused_by_preflight(root, "plc test"):
+        print("0 passed, 1 failed")
+        return 1
     build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
     t0 = time.perf_counter()
     try:

@@ -1,2 +1,2 @@
-"""Seeing and driving the running PLC: the map's names for every signal (mapinfo), the monitoring channel's
-client (monitor), `plc status` (the diagnostic block), and the live toolchanger page `plc hmi` (server)."""
+"""Seeing and driving the running PLC: the monitoring channel's client (monitor), `plc monitor` (cli) and
+`plc status` (the diagnostic block)."""

@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from .. import cliargs
-from ..host.modbus import LinkError, ModbusClient, ModbusException
+from plc.modbus import LinkError, ModbusClient, ModbusException
 
 DIAG_BASE, DIAG_COUNT = 1024, 64
 # name: (offset, words); times in microseconds

@@ -24,6 +24,7 @@ from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 from ..diagnostics import Diagnostics, Pos
 from ..driver import UserError, collect_files, display_name, read_source
 from ..parser import parse
+from ..project import project_root
 from .datatypes import ELEMENTARY
 from .xmlfile import NS, XHTML, XmlError, children, parse_bytes, path
 
@@ -307,7 +308,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str]) -> int:
-    from ..testrunner import project_root
     args, code = cliargs.parse(build_parser(), argv)
     if args is None:
         return code

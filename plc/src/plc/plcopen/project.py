@@ -9,6 +9,11 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 
+from .. import ast as A
+from ..diagnostics import Diagnostics
+from ..parser import parse
+from ..resources import STANDARD_FBS
+from ..stdfuncs import STD_FUNCS
 from .datatypes import TypeError_, initial_value, type_text
 from .graph import GraphError
 from .netst import STD_RESULT_PIN, STD_RESULT_TYPE, Context, Sig, translate_body
@@ -68,11 +73,7 @@ def comment(text: str) -> str:
 @functools.lru_cache(maxsize=1)
 def standard_fb_sigs() -> dict[str, Sig]:
     """Pins of the standard function blocks, read from the compiler's own standard_fbs.st."""
-    from ..diagnostics import Diagnostics
-    from ..driver import STANDARD_FBS, read_source
-    from ..parser import parse
-    from .. import ast as A
-    tree = parse(read_source(STANDARD_FBS), "<plc>/standard_fbs.st", Diagnostics())
+    tree = parse(STANDARD_FBS.read_text(encoding="utf-8"), "<plc>/standard_fbs.st", Diagnostics())
     out = {}
     for item in tree.items:
         if isinstance(item, A.Pou) and item.kind == "FUNCTION_BLOCK":
@@ -88,7 +89,6 @@ def standard_fb_sigs() -> dict[str, Sig]:
 
 
 def standard_function_sigs() -> dict[str, Sig]:
-    from ..stdfuncs import STD_FUNCS
     return {name: Sig("STD", std_kind=f.kind, inputs={p: "" for p in f.params}, outputs={"OUT": ""})
             for name, f in STD_FUNCS.items() if f.kind in STD_RESULT_TYPE or f.kind in STD_RESULT_PIN}
 

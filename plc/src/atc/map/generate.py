@@ -10,10 +10,12 @@ import difflib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..diagnostics import Diagnostics, Pos
+from plc.diagnostics import Diagnostics, Pos
+from plc.driver import compile_sources
+
 from . import gen_doc, gen_linuxcnc, gen_runtime, gen_st, gen_tags
 from .check import check
-from .enums import EnumType, StFacts, st_facts
+from .enums import EnumType, st_facts
 from .model import RegisterMap, load
 
 TAGS_CSV = "hmi_tags/atc_tags.csv"
@@ -60,7 +62,6 @@ def _check_program_file(rmap: RegisterMap, diags: Diagnostics) -> None:
 def check_generated_st(rmap: RegisterMap, diags: Diagnostics) -> None:
     """Compile the generated region inside a stub PROGRAM with our compiler (--target openplc): any error or
     portability warning is reported as an error, since the lead's PROGRAM must compile with MATIEC too."""
-    from ..driver import compile_sources
 
     head = "PROGRAM MapRegionCheck\n"
     body = gen_st.region(rmap)

@@ -11,9 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import ast as A
-from ..diagnostics import Diagnostics, Pos
-from ..parser import parse
+from plc import ast as A
+from plc.diagnostics import Diagnostics, Pos
+from plc.parser import parse
 
 
 @dataclass

@@ -12,13 +12,21 @@ import argparse
 import sys
 from pathlib import Path
 
-from .. import cliargs
-from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
-from ..diagnostics import Diagnostics
-from ..resources import source_checkout
+from plc import cliargs
+from plc.cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
+from plc.diagnostics import Diagnostics
+
 from .generate import drift, load_and_check, outputs, write
 
 DEFAULT_MAP = Path("modbus_map") / "map.toml"
+
+
+def source_checkout() -> Path | None:
+    """The repository this package was installed from (editable install), if it is one: None for a wheel."""
+    for parent in Path(__file__).resolve().parents:
+        if all((parent / m).is_dir() for m in ("st_src", "modbus_map")):
+            return parent
+    return None
 
 
 def default_map() -> Path:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..diagnostics import SEQ, Diagnostic, Pos, Severity
+from plc.diagnostics import SEQ, Diagnostic, Pos, Severity
 
 
 def seq_diagnostic(severity: Severity, file: str, line: int, col: int, message: str, hint: str = "",

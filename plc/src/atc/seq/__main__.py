@@ -1,4 +1,4 @@
-"""`python -m plc.seq ...` runs `plc seq ...`."""
+"""`python -m atc.seq ...` runs `plc seq ...`."""
 
 import sys
 

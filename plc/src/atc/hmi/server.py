@@ -26,13 +26,15 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import cliargs, runtime
-from ..host.modbus import LinkError, ModbusClient, ModbusException
+from plc import cliargs, runtime
+from plc.hmi import status
+from plc.hmi.monitor import Monitor, MonitorError
+from plc.modbus import LinkError, ModbusClient, ModbusException
+
 from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
-from . import mapinfo, status
-from .monitor import Monitor, MonitorError
+from . import mapinfo
 
 STATIC = Path(__file__).parent / "static"
 ALARM_KEEP = 500                 # alarms kept in the history file

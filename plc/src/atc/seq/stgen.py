@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .assemble import Assembly
 from .diagnostics import format_ranges
 from .encoding import AXES, STEP_FIELDS, Kind, Opcode, Step
-from .assemble import Assembly
 
 INDENT = "    "
 

@@ -15,8 +15,9 @@ import difflib
 import sys
 from pathlib import Path
 
-from .. import cliargs
-from ..cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
+from plc import cliargs
+from plc.cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
+
 from .assemble import check_files, check_set, display_path
 from .diagnostics import Diagnostics
 from .encoding import MAX_TOOLS, Kind

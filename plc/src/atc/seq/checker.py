@@ -13,11 +13,44 @@ from decimal import Decimal
 from typing import Callable
 
 from .diagnostics import Diagnostics, format_ranges
-from .encoding import (AXES, DINT_MAX, INT_MAX, MAX_MESSAGE, MAX_STEPS, MAX_TOOLS, P_COUNT, Q_COUNT, SCALE, Kind,
-                       Opcode, Step, channel_address)
+from .encoding import (
+    AXES,
+    DINT_MAX,
+    INT_MAX,
+    MAX_MESSAGE,
+    MAX_STEPS,
+    MAX_TOOLS,
+    P_COUNT,
+    Q_COUNT,
+    SCALE,
+    Kind,
+    Opcode,
+    Step,
+    channel_address,
+)
 from .index import IoMap, Values
-from .model import (AxisTarget, Command, Delay, Feedrate, HomeRotary, IfIn, Message, MoveAbs, MoveToEdge, Number, Out,
-                    PositionRotary, PVar, QVar, SequenceFile, Span, Spindle, ToolQVar, Value, WaitIn)
+from .model import (
+    AxisTarget,
+    Command,
+    Delay,
+    Feedrate,
+    HomeRotary,
+    IfIn,
+    Message,
+    MoveAbs,
+    MoveToEdge,
+    Number,
+    Out,
+    PositionRotary,
+    PVar,
+    QVar,
+    SequenceFile,
+    Span,
+    Spindle,
+    ToolQVar,
+    Value,
+    WaitIn,
+)
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,6 @@ read from the two runtimes' log lines, which carry the system's monotonic clock.
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import hashlib
 import os
@@ -35,9 +34,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from . import runtime
-from .cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
-from .driver import compile_sources, print_diagnostics
+from plc import runtime
+from plc.cliargs import EXIT_FINDINGS, EXIT_OK
+from plc.driver import compile_sources, print_diagnostics
+from plc.project import project_root
 
 DEFAULT_NAME = "atc-plc"
 DEFAULT_WATCHDOG_SEC = 3
@@ -473,7 +473,6 @@ def restart(command: str, log: Path | None, name: str, since: float, timeout: fl
 # ---------------------------------------------------------------------- commands
 
 def _sources(args) -> list[Path]:
-    from .testrunner import project_root
     root = project_root()
     src = args.src or ([root / "st_src"] if root else [])
     if not src or not all(Path(d).exists() for d in src):
@@ -482,7 +481,6 @@ def _sources(args) -> list[Path]:
 
 
 def _config(args, sources: list[Path]) -> Path | None:
-    from .testrunner import project_root
     if args.config is not None:
         return args.config
     root = project_root()

@@ -7,9 +7,18 @@
 """
 from __future__ import annotations
 
+import sys
+import tomllib
 from pathlib import Path
 
-from .diagnostics import Diagnostics
+from plc.diagnostics import Diagnostics
+
+from . import generation, machine
+from .map.generate import drift as map_drift
+from .map.generate import load_and_check
+from .seq.assemble import check_set
+from .seq.diagnostics import Diagnostics as SeqDiagnostics
+from .seq.stgen import generate, stable_name
 
 SEQ_INDEX = "configs/sequences/sequences.toml"
 SEQ_TABLES = "st_src/sequence/generated/SequenceTables.st"
@@ -21,7 +30,6 @@ def problems(root: Path) -> list[str]:
 
 
 def _machine(root: Path) -> list[str]:
-    from . import machine
     config = root / machine.DEFAULT_CONFIG
     if not config.is_file():
         return []
@@ -31,15 +39,14 @@ def _machine(root: Path) -> list[str]:
     if ck.problems:
         return [d.render() for d in ck.problems] + ["  fix the machine description (plc machine check), then run "
                                                     "`plc machine generate`"]
-    files, errors = machine.outputs(root, data, machine.DEFAULT_CONFIG.as_posix())
+    files, errors = generation.outputs(root, data, machine.DEFAULT_CONFIG.as_posix())
     if errors:
         return errors
     return [f"{rel}: out of date with {machine.DEFAULT_CONFIG.as_posix()}: run `plc machine generate`"
-            for rel in machine.drift(root, files)]
+            for rel in generation.drift(root, files)]
 
 
 def _map(root: Path) -> list[str]:
-    from .map.generate import drift, load_and_check
     path = root / "modbus_map" / "map.toml"
     if not path.is_file():
         return []
@@ -49,14 +56,12 @@ def _map(root: Path) -> list[str]:
         return [d.render() for d in diags.sorted() if d.severity == "error"][:10] + \
             ["  fix the register map (plc map check), then run `plc map generate`"]
     return [f"{rel}: out of date with modbus_map/map.toml: run `plc map generate`"
-            for rel in drift(loaded, Diagnostics(), show_diff=False)]
+            for rel in map_drift(loaded, Diagnostics(), show_diff=False)]
 
 
 def sequence_index(root: Path) -> str:
     """The sequence set the machine description names ([sequences] index), relative to root; SEQ_INDEX when the
     description has none or cannot be read (its own check reports that)."""
-    import tomllib
-    from . import machine
     try:
         data = tomllib.loads((root / machine.DEFAULT_CONFIG).read_text(encoding="utf-8"))
     except (OSError, tomllib.TOMLDecodeError):
@@ -66,9 +71,6 @@ def sequence_index(root: Path) -> str:
 
 
 def _sequences(root: Path) -> list[str]:
-    from .seq.assemble import check_set
-    from .seq.diagnostics import Diagnostics as SeqDiagnostics
-    from .seq.stgen import generate, stable_name
     rel = sequence_index(root)
     index, tables = root / rel, root / SEQ_TABLES
     if not index.is_file():
@@ -87,7 +89,6 @@ def _sequences(root: Path) -> list[str]:
 
 def refuse_if_stale(root: Path, command: str) -> bool:
     """Print the problems and return True when `command` (e.g. 'plc run') must not go on."""
-    import sys
     found = problems(root)
     if not found:
         return False

@@ -16,12 +16,18 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import ast as A
-from . import cliargs, portability, service
-from .cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
-from .diagnostics import Diagnostics, SourceSet
-from .driver import collect_files, compile_sources, display_name, load_user_file
-from .parser import parse
+from plc import ast as A
+from plc import cliargs, portability
+from plc.cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
+from plc.diagnostics import Diagnostics, Pos, SourceSet
+from plc.driver import collect_files, compile_sources, display_name, load_user_file
+from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS, OPENPLC_SLAVE_FIRST_BYTE
+from plc.parser import parse
+from plc.project import project_root
+
+from . import service
+from .freshness import problems
+from .host.tags import load_map
 
 KIND_ORDER = {"TYPE": 0, "FUNCTION": 1, "FUNCTION_BLOCK": 2, "PROGRAM": 3, "CONFIGURATION": 4}
 
@@ -156,7 +162,6 @@ def bundle(src_dirs: list[Path], diags: Diagnostics) -> tuple[str, list[str]]:
 
 
 def diags_pos(names: list[str]):
-    from .diagnostics import Pos
     return Pos(names[0] if names else "<deploy>", 0, 0)
 
 
@@ -181,8 +186,6 @@ def slave_device_locations(root: Path) -> dict[str, str]:
     """Signal name -> its %IX/%QX on OpenPLC when the machine's I/O module is an OpenPLC slave device: the module
     layout of io_config (inputs 0..31, coils 16..23 of the map, carousel lines from the machine description
     included) moved to %IX100.0.. / %QX100.0.."""
-    from .host.tags import load_map
-    from .io_config import MODULE_INPUTS, MODULE_OUTPUTS, OPENPLC_SLAVE_FIRST_BYTE
     out = {}
     for sig in load_map(root / "modbus_map" / "map.toml").signals:
         a = sig.address
@@ -229,7 +232,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str]) -> int:
-    from .testrunner import project_root
     parser = build_parser()
     args, code = cliargs.parse(parser, argv)
     if args is None:
@@ -247,7 +249,6 @@ def main(argv: list[str]) -> int:
               file=sys.stderr)
         return EXIT_USAGE
     if root is not None and not args.src:
-        from .freshness import problems
         stale = problems(root)          # machine description, register map and sequences alike
         if stale:
             for line in stale:

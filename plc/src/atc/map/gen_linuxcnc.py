@@ -25,10 +25,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..diagnostics import Diagnostics
+from plc.diagnostics import Diagnostics
+
 from . import iov2pins
-from .check import HAL_NAME_LEN
 from .model import RegisterMap, Signal, display
+
+HAL_NAME_LEN = 47            # the longest HAL pin name of LinuxCNC 2.9 (HAL_NAME_LEN in hal.h)
 
 MAX_READ_REGISTERS = 125
 MAX_READ_BITS = 2000

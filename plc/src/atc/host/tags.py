@@ -17,9 +17,10 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..diagnostics import Diagnostics
+from plc.diagnostics import Diagnostics
+from plc.modbus import ModbusClient
+
 from ..map.model import RegisterMap, Signal, load
-from .modbus import ModbusClient
 
 READ_GAP = 16
 MAX_REGISTERS = 125

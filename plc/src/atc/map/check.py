@@ -17,19 +17,19 @@ from __future__ import annotations
 import ipaddress
 import re
 
-from ..diagnostics import Diagnostics
-from ..lexer import KEYWORDS
-from ..portability import MATIEC_RESERVED, library_identifiers
-from ..stdfuncs import STD_FUNCS, conversion
-from ..types import ELEMENTARY, GENERIC
+from plc.diagnostics import Diagnostics
+from plc.lexer import KEYWORDS
+from plc.portability import MATIEC_RESERVED, library_identifiers
+from plc.stdfuncs import STD_FUNCS, conversion
+from plc.types import ELEMENTARY, GENERIC
+
 from . import iov2pins
 from .enums import EnumType, StFacts
-from .model import (DIRECTIONS, SEVERITIES, TABLES, TYPES_16, TYPES_32, TYPES_BIT, RegisterMap, Signal,
-                    iec_address)
+from .gen_linuxcnc import plan
+from .model import DIRECTIONS, SEVERITIES, TABLES, TYPES_16, TYPES_32, TYPES_BIT, RegisterMap, Signal, iec_address
 
 IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 HAL_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
-HAL_NAME_LEN = 47            # HAL_NAME_LEN of LinuxCNC 2.9
 MAX_TEXT = 80                # reason texts: one operator message line
 LIMITS = {"coil": 800, "discrete_input": 800, "input_register": 1024, "holding_register": 4096}
 
@@ -329,8 +329,6 @@ def _check_link(rmap: RegisterMap, diags: Diagnostics) -> None:
 
 
 def _check_linuxcnc(rmap: RegisterMap, diags: Diagnostics) -> None:
-    from .gen_linuxcnc import plan
-
     lc = rmap.linuxcnc
     try:
         ipaddress.IPv4Address(lc.host)

@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..diagnostics import Diagnostics, Pos
+from plc.diagnostics import Diagnostics, Pos
+
+from .. import machine
 
 TABLES = ("coil", "discrete_input", "input_register", "holding_register")
 DIRECTIONS = ("input", "output", "plc_to_host", "host_to_plc")
@@ -286,7 +288,6 @@ def _load_wiring(table: dict, rmap: RegisterMap, lines: KeyLines, diags: Diagnos
 def _load_machine_lines(rmap: RegisterMap, path: Path, diags: Diagnostics) -> None:
     """The carousel lines (home, pocket, code 1..6, Output ON, +DIR, -DIR) as signals, from the machine
     description: their channels live there only, and a problem is reported at its line."""
-    from .. import machine
     name = display(path, rmap.root)
     data, ck = machine.load(path, name)
     if ck.problems or data is None:

@@ -18,8 +18,11 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
+from plc.modbus import LinkError, ModbusClient
+
+from ..hmi.mapinfo import load as load_names
 from ..map.model import RegisterMap
-from .modbus import LinkError, ModbusClient
+from .mailbox import RECORD, REQUEST
 from .tags import Tags
 
 # emc-reason values LinuxCNC uses (SPEC section 2)
@@ -88,7 +91,6 @@ class Session:
 
     def attach_mailbox(self, mailbox) -> None:
         """Serve the PLC's sequence mailbox on every poll (also while a change waits for tool-changed)."""
-        from .mailbox import RECORD, REQUEST
         watch = self.watch + tuple(n for n in REQUEST if n not in self.watch)
         if not self.tags.read_together(watch, RECORD):
             raise ValueError("the mailbox record (" + ", ".join(RECORD) + ") is not one block of holding registers "
@@ -416,9 +418,8 @@ class Session:
         if signal not in s:
             return "-"
         if self._names is None:
-            from ..hmi.mapinfo import load
             try:
-                self._names = load(self.rmap.path).states
+                self._names = load_names(self.rmap.path).states
             except Exception:          # names are a comfort: a map that loads here always has them
                 self._names = {}
         value = s[signal]

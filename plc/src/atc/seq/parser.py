@@ -14,8 +14,28 @@ from typing import Callable
 
 from .diagnostics import Diagnostics
 from .lexer import Word, rest_of_line, split_words
-from .model import (AxisTarget, Command, Delay, Feedrate, HomeRotary, IfIn, Message, MoveAbs, MoveToEdge, Number,
-                    Out, PositionRotary, PVar, QVar, SequenceFile, Span, Spindle, ToolQVar, Value, WaitIn)
+from .model import (
+    AxisTarget,
+    Command,
+    Delay,
+    Feedrate,
+    HomeRotary,
+    IfIn,
+    Message,
+    MoveAbs,
+    MoveToEdge,
+    Number,
+    Out,
+    PositionRotary,
+    PVar,
+    QVar,
+    SequenceFile,
+    Span,
+    Spindle,
+    ToolQVar,
+    Value,
+    WaitIn,
+)
 
 AXIS_LETTERS = "XYZABC"
 

@@ -23,10 +23,11 @@ import re
 import sys
 from pathlib import Path
 
-from .. import cliargs
+from plc import cliargs
+from plc.modbus import LinkError, ModbusClient, ModbusException
+
 from ..map.cli import default_map
 from .mailbox import Mailbox, mailbox_in_map, message_texts
-from .modbus import LinkError, ModbusClient, ModbusException
 from .session import HostError, Session, Timeouts
 from .tags import MapError, load_map
 

@@ -8,10 +8,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..host.tags import load_map
 from ..map.enums import st_enums
 from ..map.gen_tags import states_of
 from ..map.model import RegisterMap, Signal
-from ..host.tags import load_map
 
 
 @dataclass

@@ -19,6 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from ..seq.assemble import check_set
+from ..seq.diagnostics import Diagnostics
+from ..seq.stgen import _message_numbers
 from .tags import Tags
 
 MOVEABS, MOVETOEDGE, FEEDRATE, SPINDLE_CW, SPINDLE_CCW, SPINDLE_STOP, MESSAGE, DIALOG = range(1, 9)
@@ -43,9 +46,6 @@ def mailbox_in_map(tags: Tags) -> bool:
 def message_texts(index: Path) -> dict[int, str]:
     """Message number -> text of the MESSAGE/DIALOG steps of a sequence set (sequences.toml), numbered as
     `plc seq compile` numbers them for F_SequenceMessage.  ValueError with the checker's findings if it has errors."""
-    from ..seq.assemble import check_set
-    from ..seq.diagnostics import Diagnostics
-    from ..seq.stgen import _message_numbers
 
     diags = Diagnostics()
     assembly = check_set(index, diags)

@@ -7,6 +7,10 @@ probe o03); the values themselves are kept by the runtimes' memory persistence o
 """
 from __future__ import annotations
 
+from plc import ast as A
+from plc.diagnostics import Diagnostics
+from plc.parser import parse
+
 from .model import RegisterMap, Signal, display, iec_address, reason_order
 
 BEGIN = "(* BEGIN GENERATED: modbus_map/map.toml *)"
@@ -110,9 +114,6 @@ SERIES = __import__("re").compile(r"^([A-Za-z]+?)(\d+)$")
 def application_pins(rmap: RegisterMap) -> tuple[dict[str, str], dict[str, str]] | None:
     """VAR_INPUT and VAR_OUTPUT names of [map] application (upper-case name -> spelling), read from st_src/ with
     the compiler's parser; None when the map names no application or it is not found."""
-    from .. import ast as A
-    from ..diagnostics import Diagnostics
-    from ..parser import parse
     if not rmap.application:
         return None
     for path in sorted((rmap.root / "st_src").rglob("*.st")):

@@ -1,0 +1,63 @@
+"""How an application built on the toolchain extends the `plc` command.
+
+The toolchain (this package) knows nothing of any application.  An application package declares an entry point
+in the group `plc.extensions` (pyproject.toml, `[project.entry-points."plc.extensions"]`); its target is a
+function `register(ext: Extensions)` that adds:
+
+    commands      subcommands of `plc`: a name, a one-line help and "module:function" for main(argv) -> int,
+                  imported only when the subcommand runs (so `plc --help` stays fast)
+    parsers       functions add_parser(subparsers) for subcommands that live in the main argument parser
+    preflight     checks run before `plc run` and `plc test` of a project: f(root, command) -> True refuses
+                  (the function prints why)
+    run_events    f(root, build_dir) -> Path | None: the runtime's --events description for `plc run`
+    project_marks files or directories that, next to st_src/, make a directory a project
+
+Without any extension `plc` is the bare IEC 61131-3 toolchain: check, build, test, run, retain, status,
+monitor, import, export.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cache
+from importlib import import_module
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Callable
+
+GROUP = "plc.extensions"
+
+
+@dataclass(frozen=True)
+class Command:
+    name: str
+    help: str
+    target: str                 # "package.module:function", the function is main(argv) -> int
+
+    def main(self, argv: list[str]) -> int:
+        module, _, function = self.target.partition(":")
+        return getattr(import_module(module), function or "main")(argv)
+
+
+@dataclass
+class Extensions:
+    commands: dict[str, Command] = field(default_factory=dict)
+    parsers: list[Callable] = field(default_factory=list)
+    preflight: list[Callable[[Path, str], bool]] = field(default_factory=list)
+    run_events: list[Callable[[Path, Path], Path | None]] = field(default_factory=list)
+    project_marks: list[str] = field(default_factory=list)
+    sources: list[str] = field(default_factory=list)     # the entry points that registered, for messages
+
+    def command(self, name: str, help: str, target: str) -> None:
+        if name in self.commands:
+            raise ValueError(f"plc extension: the subcommand {name!r} is registered twice")
+        self.commands[name] = Command(name, help, target)
+
+
+@cache
+def load() -> Extensions:
+    """Every installed extension, registered once per process."""
+    ext = Extensions()
+    for ep in sorted(entry_points(group=GROUP), key=lambda e: e.name):
+        ep.load()(ext)
+        ext.sources.append(f"{ep.name} ({ep.value})")
+    return ext

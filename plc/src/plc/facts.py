@@ -1,0 +1,90 @@
+"""The constructs OpenPLC's MATIEC rejects, as facts the compiler's stages record where they meet them.
+
+The lexer, the parser and the semantic passes each meet constructs our compiler takes but MATIEC does not;
+they record a `Fact` (`fact(rule, pos, **details)`) and go on.  The portability pass (portability.lint) turns
+every fact into its rule's warning.  The rules live here, below every stage, so that the lexer can record a
+fact without importing the pass that reads it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .diagnostics import Pos
+
+
+@dataclass(frozen=True)
+class Rule:
+    """A portability warning; message and hint are str.format templates over the details of the fact."""
+    message: str
+    hint: str | None = None
+
+
+# rule -> warning; the diagnostic code is "portability." + the rule name ("comment-*" share "portability.comment")
+RULES: dict[str, Rule] = {
+    "anon-enum": Rule("anonymous enumeration in a variable declaration", "declare the enumeration in a TYPE block"),
+    "anon-struct": Rule("anonymous STRUCT in a variable declaration", "declare it in a TYPE block"),
+    "array-bound": Rule("a named constant as an array bound is not accepted by MATIEC",
+                        "write the bound as a literal"),
+    "array-of-array": Rule("arrays of arrays break OpenPLC's C build", "use a 2-D array ARRAY[a..b, c..d]"),
+    "bit-access": Rule("bit access (w.3) is not accepted by OpenPLC's MATIEC", "use SHR/AND"),
+    "call-statement": Rule("a FUNCTION call is not a statement in MATIEC", "use the result: `ok := F(...);`"),
+    "case-constant": Rule("a named constant as a CASE label is rejected by MATIEC", "write the value as a literal"),
+    "comment-block": Rule("'/* */' comments are not accepted by MATIEC", "use (* ... *)"),
+    "comment-line": Rule("'//' comments are not accepted by MATIEC", "use (* ... *)"),
+    "empty-call": Rule("a call with no arguments F() is not accepted by MATIEC"),
+    "enum-base": Rule("enumerations with a base type are IEC edition 3"),
+    "enum-on": Rule("'ON' is reserved in MATIEC and cannot be an enumeration value"),
+    "enum-order": Rule("'{op}' on enumeration values is rejected by MATIEC", "compare with = or <>"),
+    "enum-qualify": Rule("'{value}' is a value of several enumerations ({enums}); MATIEC needs it qualified",
+                         "write {enum}#{value}"),
+    "enum-value": Rule("enumeration values with explicit numbers are not accepted by MATIEC", "remove ':= n'"),
+    "fb-array": Rule("arrays of function block instances are not supported by MATIEC"),
+    "fb-inout": Rule("a function block instance passed as VAR_IN_OUT is not supported by MATIEC"),
+    "generic-conversion": Rule("generic conversion {call} is IEC edition 3; OpenPLC needs <TYPE>_TO_{type}"),
+    "global": Rule("VAR_GLOBAL outside a CONFIGURATION is not accepted by MATIEC",
+                   "declare globals inside CONFIGURATION or RESOURCE"),
+    "global-fb": Rule("function block instances in VAR_GLOBAL break OpenPLC's C build",
+                      "declare the instance in the PROGRAM"),
+    "inout-element": Rule("an array element as a FUNCTION's VAR_IN_OUT breaks OpenPLC's C build",
+                          "copy it to a variable and back"),
+    "member-named-like-type": Rule("member '{member}' is named like its type: OpenPLC's g++ rejects the C that "
+                                   "MATIEC makes of it", "give the member another name"),
+    "mixed-located": Rule("a VAR block mixing located and unlocated variables is rejected by MATIEC",
+                          "put the located variables in a VAR block of their own"),
+    "no-resource": Rule("TASK and PROGRAM directly in the CONFIGURATION are rejected by MATIEC",
+                        "put them in RESOURCE Res0 ON PLC"),
+    "no-task": Rule("program instance '{instance}' has no task: MATIEC rejects it", "PROGRAM inst WITH task : Type;"),
+    "power": Rule("the '**' operator is missing in OpenPLC", "use EXPT(a, b)"),
+    "pragma": Rule("pragma {{...}} ignored here, but MATIEC pastes it into its C output", "remove it"),
+    "string-length": Rule("STRING[n] is not supported by OpenPLC (a bare declaration crashes iec2c)",
+                          "use plain STRING (126 characters)"),
+    "string-literal": Rule("a string literal of 126 characters breaks OpenPLC's C build (125 at most)"),
+    "struct-array-init": Rule("initialisers of arrays of structures break OpenPLC's C build",
+                              "initialise the elements in code"),
+    "subrange-default": Rule("MATIEC starts an inline subrange variable at 0, not at its lower bound {lo}",
+                             "give it an initial value, or declare the subrange as a TYPE"),
+    "time-conversion": Rule("{call} counts seconds in OpenPLC's MATIEC (not milliseconds)",
+                            "keep durations as TIME and compare TIME values"),
+    "time-unit": Rule("'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
+                      "write fractions of ms, e.g. T#1.5ms"),
+    "wstring": Rule("double-quoted WSTRING literals are not supported by OpenPLC"),
+}
+
+
+def rule_code(rule: str) -> str:
+    return "portability." + ("comment" if rule.startswith("comment-") else rule)
+
+
+@dataclass(frozen=True)
+class Fact:
+    """A construct OpenPLC's MATIEC rejects, recorded by the stage that met it: the rule of RULES, where, and
+    the details the rule's message names.  The portability pass makes it the rule's warning."""
+    rule: str
+    pos: Pos
+    details: tuple[tuple[str, str], ...] = ()
+
+
+def fact(rule: str, pos: Pos, **details: str) -> Fact:
+    """The fact that the construct of `rule` is at `pos` (an unknown rule is a compiler bug: KeyError)."""
+    RULES[rule]
+    return Fact(rule, pos, tuple(details.items()))
