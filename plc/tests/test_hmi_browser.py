@@ -31,6 +31,7 @@ from plc.hmi.monitor import Monitor
 from plc.modbus import ModbusClient
 from atc.host.session import Session, Timeouts
 from atc.host.tags import load_map
+from atc.runsetup import runtime_setup
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "build" / "artifacts"
@@ -61,10 +62,11 @@ def plant(tmp_path_factory):
     result = driver.compile_sources([REPO / "st_src"], portability=False)
     assert result.ok
     (tmp / "program.c").write_text(result.c_text)
-    binary = runtime.build_runtime(tmp / "program.c", h.CACHE, sanitize=h.SANITIZE)
+    setup = runtime_setup(REPO / "modbus_map" / "map.toml", tmp)     # what `plc run` of the project adds
+    binary = runtime.build_runtime(tmp / "program.c", h.CACHE, sanitize=h.SANITIZE, observer=setup.observer)
     (tmp / "token").write_text(TOKEN + "\n")
     sock = tmp / "m.sock"
-    rt = h.Runtime(binary, "--no-rt", "--monitor", str(sock), "--monitor-token", str(tmp / "token"),
+    rt = h.Runtime(binary, "--no-rt", "--sim-flag", setup.sim_flag, "--monitor", str(sock), "--monitor-token", str(tmp / "token"),
                    "--writable-registers", "512-8191").start()
     hmi = subprocess.Popen([sys.executable, "-m", "plc.cli", "hmi", "--port", "0", "--plc-port", str(rt.port),
                             "--monitor", str(sock), "--token-file", str(tmp / "token"), "--alarms",

@@ -16,6 +16,7 @@ import pytest
 
 from plc.modbus import ModbusClient
 from atc.host.tags import Tags, load_map
+from atc.runsetup import runtime_setup
 
 REPO = Path(__file__).resolve().parents[2]
 RMAP = load_map(REPO / "modbus_map" / "map.toml")
@@ -39,6 +40,9 @@ class Plc:
         cmd = [sys.executable, "-m", "plc.cli", "run", str(self.src), "--config",
                str(REPO / "configs" / "runtime.toml"), "--port", str(self.port), "--retain",
                str(self.tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")]
+        if self.src != REPO / "st_src":
+            # a copy outside the project gets no application setup from it: the copy's simulated plant by name
+            cmd += ["--sim-flag", runtime_setup(REPO / "modbus_map" / "map.toml", self.tmp).sim_flag]
         offset = self.log.stat().st_size if self.log.exists() else 0
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(cmd, cwd=REPO / "plc", stdout=log, stderr=subprocess.STDOUT)

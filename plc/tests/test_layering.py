@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -185,4 +186,23 @@ def test_the_application_registers_its_commands_and_checks_through_the_hook():
     ext = extensions.load()
     assert any(s.startswith("atc (atc.plugin:register)") for s in ext.sources)
     assert set(ext.commands) == {"seq", "map", "host", "deploy", "hmi"}
-    assert ext.preflight and ext.run_events and ext.parsers
+    assert ext.preflight and ext.run_setup and ext.parsers
+
+
+def test_the_c_runtime_names_no_signal_of_the_application():
+    """The runtime learns the application's signals from what `plc run` hands it (--events FILE, --sim-flag) and
+    links the application's events from the application's package (atc/native/events.c)."""
+    from atc.host.tags import load_map
+    # ForcesActive is the runtime's own status input (runtime.h, FORCES_ACTIVE_BIT), which the map shows
+    names = {s.name for s in load_map(REPO / "modbus_map" / "map.toml").signals} - {"ForcesActive"}
+    sim = load_map(REPO / "modbus_map" / "map.toml").signal("SimulatedPlant")
+    assert len(names) > 50 and sim is not None
+    native = SRC / "plc" / "native"
+    found = []
+    for path in sorted([*native.rglob("*.c"), *native.rglob("*.h")]):
+        text = path.read_text()
+        found += [f"{path.relative_to(SRC)}: {n}" for n in sorted(names) if re.search(rf"\b{n}\b", text)]
+        if f"%IX{sim.address // 8}.{sim.address % 8}" in text:
+            found.append(f"{path.relative_to(SRC)}: the SimulatedPlant address")
+    assert found == []
+    assert (SRC / "atc" / "native" / "events.c").is_file()

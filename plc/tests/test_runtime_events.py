@@ -18,6 +18,7 @@ import pytest
 import rt_harness as h
 from plc import driver, runtime
 from atc.hmi import mapinfo
+from atc.runsetup import runtime_setup
 from plc.hmi.monitor import Monitor
 from plc.modbus import ModbusClient
 from atc.host.session import Session, Timeouts
@@ -27,23 +28,23 @@ TOKEN = "events-test-token-0123456789"
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo]:
+def app(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo, str]:
     tmp = tmp_path_factory.mktemp("app")
     result = driver.compile_sources([REPO / "st_src"], portability=False)
     assert result.ok, "the application must compile"
     c_file = tmp / "program.c"
     c_file.write_text(result.c_text)
     info = mapinfo.load(REPO / "modbus_map" / "map.toml")
-    events = tmp / "events.txt"
-    events.write_text(mapinfo.events_description(info))
-    return runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE), events, info
+    setup = runtime_setup(REPO / "modbus_map" / "map.toml", tmp)     # what `plc run` of the project links and passes
+    binary = runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE, observer=setup.observer)
+    return binary, setup.events_file, info, setup.sim_flag
 
 
 def app_runtime(app, tmp_path: Path) -> h.Runtime:
     """The application's runtime with its events, the monitor on tmp_path/m.sock (token TOKEN) and status lines."""
-    binary, events, _info = app
+    binary, events, _info, sim_flag = app
     (tmp_path / "token").write_text(TOKEN)
-    return h.Runtime(binary, "--no-rt", "--events", str(events), "--monitor", str(tmp_path / "m.sock"),
+    return h.Runtime(binary, "--no-rt", "--sim-flag", sim_flag, "--events", str(events), "--monitor", str(tmp_path / "m.sock"),
                      "--monitor-token", str(tmp_path / "token"), "--status-interval", "0.2",
                      "--writable-registers", "512-8191")
 

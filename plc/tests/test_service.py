@@ -242,10 +242,10 @@ def test_upgrade_keeps_the_tool_refuses_a_loss_and_rolls_back(deployment, servic
 class PlcRun:
     """`plc run PATHS` on a free port with its own retain file; stderr (plc's and the runtime's) in a log."""
 
-    def __init__(self, tmp: Path, paths: list[Path]):
+    def __init__(self, tmp: Path, paths: list[Path], *options: str):
         self.port, self.log = free_port(), tmp / f"run{len(list(tmp.glob('run*.log')))}.log"
         cmd = [sys.executable, "-m", "plc.cli", "run", *map(str, paths), "--port", str(self.port), "--retain",
-               str(tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")]
+               str(tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime"), *options]
         with open(self.log, "wb") as log:
             self.proc = subprocess.Popen(cmd, cwd=REPO / "plc", stdout=log, stderr=subprocess.STDOUT)
         h.wait_until(lambda: "first scan done" in self.text() or self.proc.poll() is not None, 180, "plc run")
@@ -273,10 +273,13 @@ def test_plc_run_with_paths_keeps_the_tool_through_a_program_with_one_retain_var
     finally:
         first.stop()
     v2 = app_with_tool_change_counter(tmp_path)
-    second = PlcRun(tmp_path, [v2])
+    # sources outside the project get neither its run configuration nor its application's simulation flag: the
+    # simulated plant is asked for by name
+    second = PlcRun(tmp_path, [v2], "--io", "sim", "--sim-flag", "%IX49.7")
     try:
         log = second.text()
         assert "plc run: no run configuration (the sources are outside the project)" in log
+        assert "io sim: %IX49.7 held TRUE (--sim-flag)" in log
         m = re.search(r"retain: restored (\d+) of (\d+) values", log)
         assert "rejected" not in log and m and int(m.group(2)) == int(m.group(1)) + 1, log   # all but the new one
         assert "TOOLCHANGES (UDINT) has no saved value: it starts from its initial value" in log

@@ -1,16 +1,15 @@
 """What the tool-changer application adds to the `plc` command, through the toolchain's hook (plc.extensions):
-its subcommands, the freshness check before `plc run` and `plc test`, and the events description of the
-register map for the runtime's log."""
+its subcommands, the freshness check before `plc run` and `plc test`, and what `plc run` adds to the runtime:
+the application's events (native/events.c) with the register map's description, and the register map's
+SimulatedPlant input as the simulation flag."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-from plc.extensions import Extensions
+from plc.extensions import Extensions, RunSetup
 
 from . import freshness, generation
-from .hmi import mapinfo
-from .host.tags import MapError
+from .runsetup import runtime_setup
 
 
 def register(ext: Extensions) -> None:
@@ -22,22 +21,13 @@ def register(ext: Extensions) -> None:
     ext.command("hmi", "the live toolchanger page in a browser (plc hmi --help)", "atc.hmi.server:main")
     ext.parsers.append(generation.add_parser)
     ext.preflight.append(freshness.refuse_if_stale)
-    ext.run_events.append(events_file)
+    ext.run_setup.append(run_setup)
     ext.project_marks.extend(["modbus_map", "configs/machine.toml"])
 
 
-def events_file(root: Path, build_dir: Path) -> Path | None:
-    """The runtime's --events description, from the project's register map (None when it cannot be read)."""
+def run_setup(root: Path, build_dir: Path) -> RunSetup | None:
+    """The runtime of this project: the application's events over the register map, its simulation flag."""
     map_path = root / "modbus_map" / "map.toml"
     if not map_path.is_file():
         return None
-    try:
-        text = mapinfo.events_description(mapinfo.load(map_path))
-    except MapError as e:
-        print(f"plc run: no application events (the register map has errors):\n{e}", file=sys.stderr)
-        return None
-    out = build_dir / "events.txt"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if not out.exists() or out.read_text() != text:
-        out.write_text(text)
-    return out
+    return runtime_setup(map_path, build_dir)

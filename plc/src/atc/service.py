@@ -37,7 +37,10 @@ from pathlib import Path
 from plc import runtime
 from plc.cliargs import EXIT_FINDINGS, EXIT_OK
 from plc.driver import compile_sources, print_diagnostics
+from plc.extensions import RunSetup
 from plc.project import project_root
+
+from .runsetup import runtime_setup
 
 DEFAULT_NAME = "atc-plc"
 DEFAULT_WATCHDOG_SEC = 3
@@ -182,6 +185,20 @@ state=${{STATE_DIRECTORY:-/var/lib/{name}}}
 """
 
 
+EVENTS_ARGS = ' --events "$here/events.txt"'
+
+
+def _application_setup(sources: list[Path], work: Path) -> RunSetup:
+    """The application's events and simulation flag from the register map of the project deployed from (the one
+    `plc deploy` runs in, else the sources'); the description goes into the release as events.txt. Nothing
+    without a register map."""
+    root = project_root() or (project_root(sources[0].resolve()) if sources else None)
+    map_path = root / "modbus_map" / "map.toml" if root is not None else None
+    if map_path is None or not map_path.is_file():
+        return RunSetup()
+    return runtime_setup(map_path, work)
+
+
 def load_run_config(config: Path | None) -> runtime.RunConfig:
     """The run configuration (the built-in defaults without one), its mistakes as a DeployError."""
     try:
@@ -211,9 +228,14 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: r
     shutil.rmtree(work, ignore_errors=True)
     (work / "lib").mkdir(parents=True)
     (work / "program.c").write_text(res.c_text)
+    setup = _application_setup(sources, work)
+    if cfg.sim_flag is None:
+        cfg = dataclasses.replace(cfg, sim_flag=setup.sim_flag)
+    if cfg.io == "sim":
+        cfg = dataclasses.replace(cfg, io_chosen=True)      # refused before unless deployed with --simulated
     try:
         with tempfile.TemporaryDirectory(prefix="plc-deploy-") as build:
-            binary = runtime.build_runtime(work / "program.c", Path(build))
+            binary = runtime.build_runtime(work / "program.c", Path(build), observer=setup.observer)
             shutil.copy2(binary, work / "plc-runtime")
     except runtime.RuntimeBuildError as exc:
         shutil.rmtree(work, ignore_errors=True)
@@ -225,7 +247,8 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: r
     monitor = cfg.monitor
     (work / "run").write_text(RUN_SCRIPT.format(name=name, retain=RETAIN_FILE,
                                                 monitor=MONITOR_RUN if monitor else "",
-                                                monitor_args=MONITOR_ARGS if monitor else "",
+                                                monitor_args=(MONITOR_ARGS if monitor else "") +
+                                                (EVENTS_ARGS if setup.events_file is not None else ""),
                                                 args=" ".join(shlex.quote(a) for a in args)))
     os.chmod(work / "run", 0o755)
     if config:

@@ -88,7 +88,10 @@ def cmd_run(args) -> int:
         raise UserError("the sources have no CONFIGURATION: nothing to run")
     args.paths = paths
     args.config = run_configuration(args, root)
-    args.events_file = _events_file(root, Path(args.build_dir)) if in_project else None
+    setup = _run_setup(root, Path(args.build_dir)) if in_project else extensions.RunSetup()
+    args.events_file, args.observer = setup.events_file, setup.observer
+    if args.sim_flag is None:
+        args.sim_flag = setup.sim_flag
     c_file = Path(args.build_dir) / "program" / "program.c"
     c_file.parent.mkdir(parents=True, exist_ok=True)
     if not c_file.exists() or c_file.read_text() != res.c_text:
@@ -99,13 +102,13 @@ def cmd_run(args) -> int:
         raise UserError(str(e)) from None
 
 
-def _events_file(root: Path, build_dir: Path) -> Path | None:
-    """The runtime's --events description, from the first extension that gives one for this project."""
-    for describe in extensions.load().run_events:
-        events = describe(root, build_dir)
-        if events is not None:
-            return events
-    return None
+def _run_setup(root: Path, build_dir: Path) -> extensions.RunSetup:
+    """What the first extension that knows this project adds to the runtime (nothing without one)."""
+    for setup in extensions.load().run_setup:
+        found = setup(root, build_dir)
+        if found is not None:
+            return found
+    return extensions.RunSetup()
 
 
 def cmd_retain_show(args) -> int:

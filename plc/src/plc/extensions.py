@@ -9,7 +9,8 @@ function `register(ext: Extensions)` that adds:
     parsers       functions add_parser(subparsers) for subcommands that live in the main argument parser
     preflight     checks run before `plc run` and `plc test` of a project: f(root, command) -> True refuses
                   (the function prints why)
-    run_events    f(root, build_dir) -> Path | None: the runtime's --events description for `plc run`
+    run_setup     f(root, build_dir) -> RunSetup | None: what `plc run` of the project adds to the runtime (the
+                  application's events and their description, the simulation flag of its program)
     project_marks files or directories that, next to st_src/, make a directory a project
 
 Without any extension `plc` is the bare IEC 61131-3 toolchain: check, build, test, run, retain, status,
@@ -38,12 +39,20 @@ class Command:
         return getattr(import_module(module), function or "main")(argv)
 
 
+@dataclass(frozen=True)
+class RunSetup:
+    """What an application adds to `plc run` of its project."""
+    events_file: Path | None = None     # --events: the description the application's events read
+    observer: Path | None = None        # C source of the application's events (monitor.h), linked into the runtime
+    sim_flag: str | None = None         # --sim-flag: the input (%IXa.b) telling the program its plant is simulated
+
+
 @dataclass
 class Extensions:
     commands: dict[str, Command] = field(default_factory=dict)
     parsers: list[Callable] = field(default_factory=list)
     preflight: list[Callable[[Path, str], bool]] = field(default_factory=list)
-    run_events: list[Callable[[Path, Path], Path | None]] = field(default_factory=list)
+    run_setup: list[Callable[[Path, Path], RunSetup | None]] = field(default_factory=list)
     project_marks: list[str] = field(default_factory=list)
     sources: list[str] = field(default_factory=list)     # the entry points that registered, for messages
 

@@ -63,6 +63,8 @@ from typing import Any, Sequence
 from . import io_config
 from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
 
+NO_EVENTS = "events_none.c"       # the runtime without application events; an observer's C source replaces it
+
 BINARY_NAME = "plc-runtime"
 
 COILS = 800                 # %QX0.0 .. %QX99.7
@@ -135,8 +137,10 @@ def _trim(text: str, lines: int = 60) -> str:
 
 
 def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
-                  include_dirs: Sequence[Path] = ()) -> Path:
+                  include_dirs: Sequence[Path] = (), observer: Path | None = None) -> Path:
     """Compile the runtime with `program_c`; return the executable (reused when nothing changed).
+
+    `observer` is the C source of an application's events (monitor.h), linked in place of events_none.c.
 
     The cache key covers the compiler version, the flags, the runtime sources and
     headers, and the program file with every header it includes.  `sanitize` builds
@@ -149,6 +153,10 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
     sources = sorted(RUNTIME_DIR.glob("*.c"))
     if not sources:
         raise RuntimeBuildError(f"runtime sources not found in {RUNTIME_DIR}")
+    if observer is not None:
+        if not Path(observer).is_file():
+            raise RuntimeBuildError(f"the application's events source {observer} does not exist")
+        sources = [s for s in sources if s.name != NO_EVENTS] + [Path(observer)]
     cc = _compiler()
     modbus_cflags, modbus_libs = _modbus_flags()
     cppflags = ["-I" + str(RUNTIME_DIR), "-I" + str(INCLUDE_DIR)]
@@ -196,7 +204,8 @@ class RunConfig:
     allow: list[str] = dataclasses.field(default_factory=list)
     writable_coils: list[str] | None = None          # None: the runtime's default
     writable_registers: list[str] | None = None
-    io: str = "sim"
+    io: str = "sim"                                  # the default: outputs loop back to inputs
+    io_chosen: bool = False                          # the layer was asked for (--io, [io] layer), not the default
     io_devices: list[str] = dataclasses.field(default_factory=list)   # --io-device specs ([[io.device]])
     retain_file: Path | None = None                  # None: DEFAULT_RETAIN_FILE
     retain_interval_ms: int = 200
@@ -211,13 +220,14 @@ class RunConfig:
     monitor_socket: Path | None = None               # None: beside the retain file (plc.monitor)
     token_file: Path | None = None                   # None: beside the retain file (monitor.token)
     audit_file: Path | None = None                   # None: beside the retain file (audit.log)
-    events_file: Path | None = None                  # set by `plc run` from the project's register map
+    events_file: Path | None = None                  # set by `plc run` from the application (plc.extensions)
+    sim_flag: str | None = None                      # [io] sim_flag / --sim-flag: %IXa.b held TRUE by --io sim
 
 
 _KEYS = {
     "modbus": {"bind", "port", "max_clients", "frame_timeout_ms", "read_only", "allow", "writable_coils",
                "writable_registers"},
-    "io": {"layer", "device"},
+    "io": {"layer", "device", "sim_flag"},
     "retain": {"file", "interval_ms", "registers"},
     "scan": {"realtime", "rt_priority", "cpu", "cpu_latency_us", "status_interval_s", "watchdog_ms"},
     "monitor": {"enabled", "socket", "token_file", "audit_file"},
@@ -326,6 +336,9 @@ def load_config(path: Path) -> RunConfig:
     io = data.get("io", {})
     if "layer" in io:
         cfg.io = check("io", "layer", _check_layer) or cfg.io
+        cfg.io_chosen = True
+    if "sim_flag" in io:
+        cfg.sim_flag = check("io", "sim_flag", check_discrete_input) or cfg.sim_flag
     if "device" in io:
         devices, problems = io_config.check_devices(path, text, io["device"], ck)
         if not problems:
@@ -367,6 +380,14 @@ def load_config(path: Path) -> RunConfig:
         raise ConfigError(f"{len(ck.problems)} problem(s) in the run configuration {path}:\n"
                           + "\n".join(ck.in_file_order()), ck.in_file_order())
     return cfg
+
+
+def check_discrete_input(where: str, value: Any) -> str:
+    """A discrete input of OpenPLC's map written %IXa.b (a 0..99, b 0..7)."""
+    m = re.fullmatch(r"%IX(\d{1,2})\.([0-7])", value) if isinstance(value, str) else None
+    if m is None:
+        raise ConfigError(f"{where}: expected a discrete input %IX0.0..%IX99.7, got {value!r}")
+    return value
 
 
 def _check_layer(where: str, value: Any) -> str:
@@ -451,6 +472,8 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
         argv += ["--monitor", str(sock), "--monitor-token", str(token), "--audit", str(audit)]
     if cfg.events_file is not None:
         argv += ["--events", str(cfg.events_file)]
+    if cfg.io == "sim" and cfg.io_chosen and cfg.sim_flag is not None:
+        argv += ["--sim-flag", cfg.sim_flag]        # the program's simulated plant runs only when asked
     return argv
 
 
@@ -463,6 +486,9 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, metavar="N", help=f"Modbus/TCP port (default {DEFAULT_PORT})")
     parser.add_argument("--io", choices=IO_LAYERS,
                         help="I/O layer (default sim; modbus: the [[io.device]] remote I/O of --config)")
+    parser.add_argument("--sim-flag", metavar="%IXa.b",
+                        help="with --io sim: the discrete input held TRUE to tell the program its plant models run "
+                             "(default: the application's, e.g. SimulatedPlant of the register map; none without one)")
     parser.add_argument("--read-only", action="store_true", default=None,
                         help="serve reads only: every Modbus write is answered with exception 01")
     parser.add_argument("--retain", type=Path, metavar="FILE",
@@ -483,7 +509,7 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     if args.port is not None:
         cfg.port = _check_int("--port", args.port, 0, 65535)
     if args.io is not None:
-        cfg.io = args.io
+        cfg.io, cfg.io_chosen = args.io, True
     if cfg.io == "modbus" and not cfg.io_devices:
         raise ConfigError("--io modbus needs the remote I/O devices: [[io.device]] tables in the run "
                           "configuration (--config FILE)")
@@ -494,8 +520,13 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     if getattr(args, "no_monitor", False):
         cfg.monitor = False
     cfg.events_file = getattr(args, "events_file", None)
+    if getattr(args, "sim_flag", None) is not None:
+        cfg.sim_flag = check_discrete_input("--sim-flag", args.sim_flag)
+    if not cfg.io_chosen:
+        simulated = " (the program's simulated plant is off: --io sim runs it)" if cfg.sim_flag else ""
+        print(f"plc run: I/O layer sim by default: outputs loop back to inputs{simulated}", file=sys.stderr)
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
-    binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize)
+    binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize, observer=getattr(args, "observer", None))
     try:
         retain.parent.mkdir(parents=True, exist_ok=True)
         if cfg.monitor:

@@ -2,7 +2,7 @@
  * force.c - write once, force, and snapshots, between the monitor thread and
  * the scan thread.
  *
- * PLC semantics (SPEC section 11): a write sets a value once, before the
+ * PLC semantics (docs/monitoring.md): a write sets a value once, before the
  * program runs; a force holds a value: it is laid on the variable after the
  * inputs are read (and host writes applied) and again before the outputs are
  * published, so a forced input is what the program sees and a forced output

@@ -1,34 +1,38 @@
 /*
  * io_sim.c - the simulated plant attached to the I/O image.
  *
- * The carousel, arm and collet are simulated by the ST plant models
- * (FB_CarouselPlant and friends) inside the program, so that the same
- * simulation also runs on a real OpenPLC for demos.  This layer tells the
- * program to use them by raising the discrete input SIM_FLAG_BIT (%IX49.7,
- * "SimulatedPlant" in modbus_map/map.toml).  Every other input is a loop-back
- * of the outputs of the previous scan (%QXn.m -> %IXn.m, %QWn -> %IWn), which
- * keeps simple programs testable without a plant.
+ * A program that carries models of its own plant (the tool changer's ST
+ * plant models, which also run on a real OpenPLC for demos) is told to use
+ * them by one discrete input it names: `--sim-flag %IXa.b` (the application
+ * says which, from its register map; `plc run` passes it).  That input is held
+ * TRUE; every other input is a loop-back of the outputs of the previous scan
+ * (%QXn.m -> %IXn.m, %QWn -> %IWn), which keeps simple programs testable
+ * without a plant.
  */
 #include <stdlib.h>
 #include <string.h>
 
 #include "runtime.h"
 
-/* %IX49.7: TRUE tells the program that its plant models stand in for the machine. */
-#define SIM_FLAG_BIT 399
-
 typedef struct sim_plant {
     plc_bool_t qx[MAP_BITS];
     uint16_t qw[MAP_WORDS];
+    int flag_bit;                  /* --sim-flag, -1: none */
 } sim_plant_t;
 
 static int sim_open(runtime_t *rt, void **state, char *err, size_t errlen)
 {
-    (void)rt;
     (void)err;
     (void)errlen;
-    *state = calloc(1, sizeof(sim_plant_t));
-    return *state ? 0 : -1;
+    sim_plant_t *s = calloc(1, sizeof(sim_plant_t));
+    if (!s)
+        return -1;
+    s->flag_bit = rt->opt.sim_flag_bit;
+    if (s->flag_bit >= 0)
+        log_msg(rt->log, LOG_INFO, "io sim: %%IX%d.%d held TRUE (--sim-flag): the program's plant models run",
+                s->flag_bit / 8, s->flag_bit % 8);
+    *state = s;
+    return 0;
 }
 
 static void sim_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw[MAP_WORDS])
@@ -37,7 +41,8 @@ static void sim_read_inputs(void *state, plc_bool_t ix[MAP_BITS], uint16_t iw[MA
 
     memcpy(ix, s->qx, sizeof s->qx);
     memcpy(iw, s->qw, sizeof s->qw);
-    ix[SIM_FLAG_BIT] = 1;
+    if (s->flag_bit >= 0)
+        ix[s->flag_bit] = 1;
 }
 
 static void sim_write_outputs(void *state, const plc_bool_t qx[MAP_BITS], const uint16_t qw[MAP_WORDS])
@@ -55,7 +60,7 @@ static void sim_close(void *state)
 
 const io_layer_t io_sim_layer = {
     .name = "sim",
-    .description = "simulated plant (the program's plant models, %IX49.7 set; other inputs loop back)",
+    .description = "simulated plant (outputs loop back to inputs; --sim-flag raises the program's own flag)",
     .open = sim_open,
     .read_inputs = sim_read_inputs,
     .write_outputs = sim_write_outputs,

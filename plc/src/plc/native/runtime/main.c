@@ -46,6 +46,8 @@ static void usage(FILE *f)
 "  --port N                 TCP port (default %d; 0 = any free port, logged)\n"
 "  --io sim|none|modbus     I/O layer (default sim: outputs looped back to inputs;\n"
 "                           modbus: remote I/O devices given by --io-device)\n"
+"  --sim-flag %%IXa.b        with --io sim: hold this discrete input TRUE, the program's\n"
+"                           sign that its plant models stand in for the machine (default: none)\n"
 "  --io-device SPEC         a remote I/O device of --io modbus (repeatable, at most %u;\n"
 "                           `plc run` writes SPEC from the run configuration, see io_modbus.c)\n"
 "  --retain FILE            file that keeps RETAIN data across restarts (default: none)\n"
@@ -75,8 +77,8 @@ static void usage(FILE *f)
 "                           Unix socket, mode 0600 (default: none)\n"
 "  --monitor-token FILE     the token that unlocks writes and forces (without: read-only)\n"
 "  --audit FILE             append every write, force and refused token here\n"
-"  --events FILE            register-map description: tool changes, faults, aborts,\n"
-"                           E-stop, homing and the host link on the log (written by plc run)\n"
+"  --events FILE            the description the application's events read (the signals\n"
+"                           they watch; written by plc run); without an application: ignored\n"
 "  --describe-retain        print the retained entries (path, type, location, bytes) and the\n"
 "                           located variables, one per line, tab-separated, and exit\n"
 "  --version, --help\n"
@@ -194,10 +196,22 @@ static int parse_cpu(const char *text, int *out)
     return 0;
 }
 
+/* --sim-flag %IXa.b: a discrete input of OpenPLC's map, %IX0.0..%IX99.7. */
+static int parse_discrete_input(const char *text, int *out)
+{
+    unsigned byte, bit;
+    char tail;
+
+    if (sscanf(text, "%%IX%u.%u%c", &byte, &bit, &tail) != 2 || byte >= MAP_BITS / 8 || bit > 7)
+        return usage_error("--sim-flag: '%s' is not a discrete input %%IX0.0..%%IX99.7", text);
+    *out = (int)(8 * byte + bit);
+    return 0;
+}
+
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_IO_DEVICE, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
        OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_CPU, OPT_CPU_LATENCY, OPT_STATUS,
        OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP,
-       OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS };
+       OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS, OPT_SIM_FLAG };
 
 static int parse_options(int argc, char **argv, rt_options_t *o)
 {
@@ -228,6 +242,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "monitor-token", required_argument, NULL, OPT_MONITOR_TOKEN },
         { "audit", required_argument, NULL, OPT_AUDIT },
         { "events", required_argument, NULL, OPT_EVENTS },
+        { "sim-flag", required_argument, NULL, OPT_SIM_FLAG },
         { "version", no_argument, NULL, OPT_VERSION },
         { "help", no_argument, NULL, OPT_HELP },
         { NULL, 0, NULL, 0 },
@@ -246,6 +261,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     o->realtime = true;
     o->rt_priority = DEFAULT_RT_PRIORITY;
     o->cpu = -1;
+    o->sim_flag_bit = -1;
     o->cpu_latency_us = -1;
     o->status = STATUS_AUTO;
     o->status_interval_s = 10;
@@ -372,6 +388,10 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             break;
         case OPT_AUDIT:
             o->audit_path = optarg;
+            break;
+        case OPT_SIM_FLAG:
+            if ((rc = parse_discrete_input(optarg, &o->sim_flag_bit)) != 0)
+                return rc;
             break;
         case OPT_EVENTS:
             o->events_path = optarg;

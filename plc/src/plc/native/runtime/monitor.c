@@ -1,7 +1,7 @@
 /*
  * monitor.c - the monitoring channel: watch, write and force over a Unix socket.
  *
- * Never the Modbus port (SPEC section 11) and never on the scan thread: one
+ * Never the Modbus port (docs/monitoring.md) and never on the scan thread: one
  * thread of its own serves a Unix socket (mode 0600, so local and the
  * runtime's user only) with a line protocol; every answer is one JSON line.
  *

@@ -13,9 +13,11 @@
  *   monitor.c   the monitoring channel: a Unix socket, its own thread, a
  *               line protocol answered in JSON, a token for writes, an
  *               audit log
- *   events.c    tool changes, prepares, faults, aborts, E-stop, homing and
- *               the host link told on the log, from the register map's
- *               signals (a description file written by `plc run`)
+ *   events      the application's events: what its program does, told on
+ *               the log and the status line.  An application links its own
+ *               implementation of the four functions below (the tool
+ *               changer's is plc/src/atc/native/events.c); events_none.c,
+ *               the default, tells nothing
  *
  * The scan thread calls exactly three functions, one line each:
  * monitor_after_inputs(), monitor_before_outputs(), monitor_scan_done().
@@ -121,7 +123,7 @@ typedef struct monitor monitor_t;
 int monitor_start(runtime_t *rt, monitor_t **out);      /* after the first image is published */
 void monitor_stop(monitor_t *m);
 
-/* ------------------------------------------------------------ events.c */
+/* ----------------------------------- application events (events_none.c) */
 
 typedef struct events events_t;
 int events_open(runtime_t *rt, const char *path, events_t **out);   /* NULL path: nothing to tell */

@@ -44,7 +44,7 @@
 
 /* ------------------------------------------------------------ address map */
 
-/* OpenPLC's address map (SPEC section 6). */
+/* OpenPLC's address map (docs/openplc-addressing.md). */
 #define MAP_BITS        PLC_MAP_BITS    /* %IX0.0..%IX99.7, %QX0.0..%QX99.7 */
 /* %IX49.6: TRUE while any variable is forced (the monitor's `force`), set by the
  * runtime after the forces are laid on every scan: inputs are then not the
@@ -253,7 +253,8 @@ typedef struct rt_options {
     const char *monitor_path;      /* Unix socket of the monitoring channel (NULL: none) */
     const char *monitor_token_file;    /* file holding the token that unlocks writes (NULL: read-only) */
     const char *audit_path;        /* every write and force appended here (NULL: log only) */
-    const char *events_path;       /* register-map description for application events (NULL: none) */
+    const char *events_path;       /* description the application's events read (--events; NULL: none) */
+    int sim_flag_bit;              /* --sim-flag %IXa.b: the discrete input the sim layer raises (-1: none) */
 } rt_options_t;
 
 /* ------------------------------------------------------------ statistics */

@@ -3,7 +3,7 @@
  *
  * Period = the program's base tick (GCD of its task intervals).  Deadlines are
  * absolute on CLOCK_MONOTONIC: deadline k = start + k * period, so lateness
- * never accumulates.  The program's clock is virtual (SPEC section 9): before
+ * never accumulates.  The program's clock is virtual (docs/matiec.md): before
  * the scan of tick t, *clock_ns = t * base_tick_ns.
  *
  * A scan that ends after the next deadline is an overrun; the next scan then

@@ -41,7 +41,7 @@
 
 #include "plc_abi.h"
 
-/* OpenPLC's address map (SPEC section 6). */
+/* OpenPLC's address map (docs/openplc-addressing.md). */
 #define PLC_MAP_BITS  800u      /* %IX0.0..%IX99.7, %QX0.0..%QX99.7 */
 #define PLC_MAP_WORDS 1024u     /* %IW, %QW, %MW, %MD, %ML: 1024 each */
 

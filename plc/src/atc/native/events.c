@@ -1,7 +1,10 @@
 /*
  * events.c - what the toolchanger does, told on the runtime's log.
  *
- * `plc run` writes a description of the register map (--events FILE): the
+ * The tool-changer application's events (monitor.h's events section): `plc
+ * run` of the project links this file into the runtime in place of the
+ * toolchain's events_none.c (atc.plugin, the toolchain's RunSetup.observer).
+ * It writes a description of the register map (--events FILE): the
  * signals with their table, address and type, the state names of the coded
  * signals and the text of every reason code.  At the end of each scan the
  * scan thread reads the signals it knows by name from the program image
@@ -50,7 +53,7 @@ static const char *const role_signal[R_COUNT] = {
     NULL,   /* derived: the E-stop chain as the application sees it */
 };
 
-/* LinuxCNC's emc-abort reasons (SPEC section 2). */
+/* LinuxCNC's emc-abort reasons (docs/iov2.md). */
 static const struct { int code; const char *name; } cnc_reasons[] = {
     { 1, "TASK_EXEC_ERROR" }, { 2, "AUX_ESTOP" }, { 3, "MOTION_OR_IO_RCS_ERROR" }, { 4, "TASK_STATE_OFF" },
     { 5, "TASK_STATE_ESTOP_RESET" }, { 6, "TASK_STATE_ESTOP" }, { 7, "TASK_STATE_NOT_ON" }, { 8, "TASK_ABORT" },

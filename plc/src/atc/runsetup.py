@@ -1,0 +1,35 @@
+"""What the tool-changer application adds to its runtime, for `plc run` (atc.plugin) and for a service release
+(atc.service): the application's events (native/events.c, linked in place of the runtime's events_none.c) with
+the register map's description, and the map's SimulatedPlant input as the simulation flag of `--io sim`."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from plc.extensions import RunSetup
+
+from .hmi import mapinfo
+from .host.tags import MapError
+
+EVENTS_C = Path(__file__).resolve().parent / "native" / "events.c"
+SIM_FLAG_SIGNAL = "SimulatedPlant"
+
+
+def runtime_setup(map_path: Path, build_dir: Path) -> RunSetup:
+    """The events description written under build_dir from the map at map_path, the events' C source and the
+    map's SimulatedPlant input; a map with errors gives the runtime no events and no flag (said on stderr)."""
+    try:
+        info = mapinfo.load(map_path)
+    except MapError as e:
+        print(f"plc run: no application events and no simulation flag (the register map has errors):\n{e}",
+              file=sys.stderr)
+        return RunSetup()
+    text = mapinfo.events_description(info)
+    out = build_dir / "events.txt"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not out.exists() or out.read_text() != text:
+        out.write_text(text)
+    flag = info.rmap.signal(SIM_FLAG_SIGNAL)
+    sim_flag = f"%IX{flag.address // 8}.{flag.address % 8}" if flag is not None and flag.table == "discrete_input" \
+        else None
+    return RunSetup(events_file=out, observer=EVENTS_C, sim_flag=sim_flag)
