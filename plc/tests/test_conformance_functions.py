@@ -1,6 +1,6 @@
 """Conformance: arithmetic, conversions and the standard functions, compiled and run.
 
-Expected values are OpenPLC's MATIEC results (SPEC.md section 9, MATIEC findings):
+Expected values are OpenPLC's MATIEC results (docs/matiec.md):
 wrap-around, truncating division, MOD 0 = 0, REAL_TO_INT half to even,
 TIME_TO_DINT in seconds, shifts on the type's width.  One build for the module.
 """

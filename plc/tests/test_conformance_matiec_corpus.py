@@ -1,4 +1,4 @@
-"""Conformance with OpenPLC's MATIEC on programs from a corpus it accepts or rejects (SPEC.md section 9):
+"""Conformance with OpenPLC's MATIEC on programs from a corpus it accepts or rejects (docs/matiec.md):
 CONTINUE runs as MATIEC runs it; PROGRAMs may each locate a variable at the same input; a direct address in a
 body is an error (MATIEC rejects it; compiling it to a constant would be a wrong program); a STRUCT member named
 like its type gets a portability warning (OpenPLC's g++ fails on MATIEC's C); an unqualified enumeration value

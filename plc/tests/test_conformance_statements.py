@@ -1,7 +1,7 @@
 """Conformance: statements (IF/ELSIF, CASE, FOR, WHILE, REPEAT, EXIT, RETURN) compiled and run.
 
 Every expected value is OpenPLC's MATIEC behaviour as measured scan by scan
-(SPEC.md section 9 and the MATIEC findings).  All programs share one build.
+(docs/matiec.md).  All programs share one build.
 """
 from __future__ import annotations
 

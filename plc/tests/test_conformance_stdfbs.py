@@ -1,7 +1,7 @@
 """Conformance: the standard function blocks scan by scan (4 ms task, clock 0 on scan 1).
 
 The expected series are OpenPLC's MATIEC results measured scan by scan
-(SPEC.md section 9 and the MATIEC findings' scan facts): TON with PT = 20 ms
+(docs/matiec.md, "Results our code must reproduce"): TON with PT = 20 ms
 sets Q on scan 6, R_TRIG fires on the first scan, F_TRIG does not, CTU counts a
 held input once, and so on.  One build for the module.
 """

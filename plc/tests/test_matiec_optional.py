@@ -1,6 +1,6 @@
 """Optional cross-check: does the real MATIEC accept our ST, run the way OpenPLC v3 runs it?
 
-Our compiler is meant to accept exactly the portable subset of ST (SPEC.md section 9).  These tests hand the
+Our compiler is meant to accept exactly the portable subset of ST (docs/matiec.md).  These tests hand the
 project's ST to the reference compiler when the user has one installed, so a portability slip shows up here and
 not on a customer's OpenPLC:
 

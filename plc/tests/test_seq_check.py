@@ -105,7 +105,7 @@ def _steps_of(path: Path, kind: Kind = Kind.PUT, tool: int = 1):
 
 
 def test_seed_p_coordinates_program_equals_the_literal_one():
-    # Seed 003 rewrites its Put Tool example with P4, P7, P2, P11: both must compile to the same steps.
+    # The Logosol manual rewrites its Put Tool example with P4, P7, P2, P11: both must compile to the same steps.
     literal = _steps_of(CORPUS / "valid" / "seed_put_literal.seq")
     with_p = _steps_of(CORPUS / "valid" / "seed_put_p.seq")
     strip = lambda steps: [(s.opcode, s.channel, s.level, s.duration_ms, s.value, s.axis_mask, s.axes, s.text)
@@ -115,7 +115,7 @@ def test_seed_p_coordinates_program_equals_the_literal_one():
 
 
 def test_q_variables_resolve_per_tool():
-    # Seed 003: "For T1: MOVEABS X Q1 => MOVEABS X 10.0; for T2: MOVEABS X Q1 => MOVEABS X 60.0".
+    # The Logosol manual: "For T1: MOVEABS X Q1 => MOVEABS X 10.0; for T2: MOVEABS X Q1 => MOVEABS X 60.0".
     assembly, diags = assemble(VALID_INDEX)
     assert assembly is not None, [d.render() for d in diags.errors]
     put1 = assembly.sequences[assembly.select[(Kind.PUT, 1)] - 1]

@@ -10,7 +10,7 @@
  * direction); a link process copies the sender's current frame to the receiver's view whenever it
  * runs. Since spin interleaves processes freely, this covers every delay (0..any scans), every polling
  * period and every skipped frame, with the order of frames kept (a receiver never sees an older frame
- * after a newer one) -- the mb2hal/Modbus behaviour of SPEC section 3.
+ * after a newer one) -- the mb2hal/Modbus behaviour of docs/mb2hal.md.
  *
  * State correspondence (Promela constant -> ST enum value):
  *   H_IDLE  HostIdle           H_PREP  HostPreparing      H_START HostStartChange

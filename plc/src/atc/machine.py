@@ -6,7 +6,7 @@ lines before anything runs; `plc machine generate` writes st_src/app/generated/F
 block whose outputs are the configuration structures (an FB, because MATIEC rejects a FUNCTION called without
 arguments).  `plc machine check` also fails when the generated file is not what the TOML says (drift).
 
-A machine "with fixed pockets" (the seed's rack changer: no carousel, the spindle fetches each tool from its own
+A machine "with fixed pockets" (a Logosol rack changer: no carousel, the spindle fetches each tool from its own
 rack position) has a [rack] section instead of [carousel]: FixedPockets is TRUE (a prepare never turns anything),
 the positioner gets a neutral configuration it never uses, and [rack] x/y/grip_z describe the rack for the
 simulated plant (the sequences carry the same positions as Q coordinates).

@@ -1,6 +1,6 @@
 """The CNC end of the iov2 protocol over the register map: what LinuxCNC's iov2 does, for `plc host`.
 
-Every handshake is four-phase (SPEC section 2): numbers are written before the request bit rises; the
+Every handshake is four-phase (docs/iov2.md): numbers are written before the request bit rises; the
 request is held until its ack rises, then dropped; the next request waits until that ack has dropped.
 A rising ToolchangerFault is answered at any time, in every wait, as iov2 does: the reason is read, the
 host's fault latch (ToolchangerFaulted) is set, ToolchangerFaultAck follows the fault line.  What a fault
@@ -25,7 +25,7 @@ from ..map.model import RegisterMap
 from .mailbox import RECORD, REQUEST
 from .tags import Tags
 
-# emc-reason values LinuxCNC uses (SPEC section 2)
+# emc-reason values LinuxCNC uses (docs/iov2.md)
 REASON_TASK_ABORT = 8
 REASON_MOTION_OR_IO_ERROR = 3
 REASON_ABORT_BY_TOOLCHANGER_FAULT = 101

@@ -1,6 +1,6 @@
 """Validate the register map and the reason codes; every problem becomes a Diagnostic at file:line.
 
-What is checked (SPEC section 6 and the portability rules of section 9):
+What is checked (docs/openplc-addressing.md and the portability rules of docs/matiec.md):
 - names: ST identifiers MATIEC takes, unique (case-insensitive) across signals and generated constants;
 - tables, types and addresses: BOOL only in coils/discrete inputs; INT/UINT/WORD one register; 32-bit types two
   registers, high word first, only in %MD (holding 2048..4095, even offset); everything inside OpenPLC's map;

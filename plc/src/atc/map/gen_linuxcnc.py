@@ -1,6 +1,6 @@
 """configs/linuxcnc/atc_mb2hal.ini and atc_iov2.hal: LinuxCNC 2.9 (iov2 + mb2hal) on the register map.
 
-mb2hal (SPEC section 3) runs the transactions of a link strictly in INI order, round-robin, and re-sends
+mb2hal (docs/mb2hal.md) runs the transactions of a link strictly in INI order, round-robin, and re-sends
 writes every pass.  The plan: the host's numbers are written before its bits, the PLC's numbers are read
 after its bits (so a number is never older than the bit read with it; the PLC sets both in one scan):
 

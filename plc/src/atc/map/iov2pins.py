@@ -1,4 +1,4 @@
-"""The toolchanger pins of LinuxCNC 2.9's iov2 (seeds 000/001/004): name -> (HAL type, direction).
+"""The toolchanger pins of LinuxCNC 2.9's iov2 (docs/iov2.md): name -> (HAL type, direction).
 
 Direction is iov2's: OUT = iov2 drives it (CNC -> toolchanger, host_to_plc), IN = iov2 reads it
 (toolchanger -> CNC, plc_to_host).  toolchanger-clear-fault is an iov2 input driven by the operator (a GUI

@@ -1,4 +1,4 @@
-"""Tool-change sequences (seed 003, Logosol "Tools Sequences"): parse, check, compile into ST step tables.
+"""Tool-change sequences (Logosol "Tools Sequences", docs/logosol.md): parse, check, compile into ST step tables.
 
 Stages, each a module with one input and one output:
     lexer -> parser (model) -> checker (in the context of index) -> assemble -> stgen

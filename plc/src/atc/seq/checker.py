@@ -330,7 +330,7 @@ class _Checker:
         kind = self.ctx.kind
         if kind not in (Kind.LENGTH, Kind.PUT):
             self.error(command.span, f"MOVETOEDGE is not defined in a {kind.title} sequence",
-                       hint="seed 003 defines it for Length Measurement (the input must change) and Put Tool "
+                       hint="the Logosol manual defines it for Length Measurement (the input must change) and Put Tool "
                             "(a change fails the sequence)")
             return None
         channel = self.channel(command.channel, output=False)

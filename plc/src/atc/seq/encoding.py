@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 
 from ..machine import MAX_POCKETS
 
-# --- limits (seed 003 and the runner's array bounds) -------------------------------------------------------------
+# --- limits (the Logosol manual, docs/logosol.md, and the runner's array bounds) ----------------------------------
 MAX_TOOLS = MAX_POCKETS  # one tool per carousel pocket (pocket n holds tool n): the machine's pocket limit
-P_COUNT = 230  # P1..P230, the seed's P table (23 rows of 10)
-Q_COUNT = 20  # TnQ1..TnQ20 per tool, the seed's Q table (2 rows of 10 per tool)
+P_COUNT = 230  # P1..P230, the Logosol P table (23 rows of 10)
+Q_COUNT = 20  # TnQ1..TnQ20 per tool, the Logosol Q table (2 rows of 10 per tool)
 IO_CHANNELS = 64  # channel n is %IX/%QX (n / 8).(n mod 8); the runner's arrays are ARRAY[0..63] OF BOOL
 MAX_STEPS = 500  # steps of one sequence (its End step not counted)
 MAX_MESSAGE = 80  # characters of a MESSAGE/DIALOG text (the IEC default STRING length)

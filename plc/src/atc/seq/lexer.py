@@ -1,7 +1,7 @@
 """Split one line of a sequence file into words with their columns.
 
 The language is line based: a command and its arguments separated by blanks, `/` starts a comment that runs to
-the end of the line (seed 003 writes `OUT 17 1 / brake is OFF`). A slash therefore cannot appear in a MESSAGE
+the end of the line (the Logosol manual writes `OUT 17 1 / brake is OFF`). A slash therefore cannot appear in a MESSAGE
 text. Columns are 1-based and count characters; a tab counts as one.
 """
 

@@ -133,7 +133,7 @@ class MoveToEdge(Command):
 
 @dataclass(frozen=True)
 class Feedrate(Command):
-    rate: Value  # thousandths of a user unit per second (seed 003)
+    rate: Value  # thousandths of a user unit per second (docs/logosol.md)
 
 
 @dataclass(frozen=True)
