@@ -104,7 +104,7 @@ def test_a_full_config_is_read(tmp_path):
     cfg = runtime.load_config(cfg_file)
     assert cfg == runtime.RunConfig(
         bind="127.0.0.1", port=5021, max_clients=4, frame_timeout_ms=500, read_only=True, allow=["127.0.0.1/32", "10.1.2.0/24"],
-        writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none",
+        writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none", io_chosen=True,
         retain_file=tmp_path / "state" / "plc.retain", retain_interval_ms=50, retain_registers=["1024-1027"],
         realtime=False, rt_priority=20, cpu=1, cpu_latency_us=0, status_interval_s=2.5, watchdog_ms=250)
     argv = runtime.runtime_argv(Path("/x/plc-runtime"), cfg)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from plc.extensions import RunSetup
 
+from . import machine
 from .hmi import mapinfo
 from .host.tags import MapError
 
@@ -29,7 +30,31 @@ def runtime_setup(map_path: Path, build_dir: Path) -> RunSetup:
     out.parent.mkdir(parents=True, exist_ok=True)
     if not out.exists() or out.read_text() != text:
         out.write_text(text)
+    levels = stop_levels(map_path.parents[1] / machine.DEFAULT_CONFIG)
     flag = info.rmap.signal(SIM_FLAG_SIGNAL)
     sim_flag = f"%IX{flag.address // 8}.{flag.address % 8}" if flag is not None and flag.table == "discrete_input" \
         else None
-    return RunSetup(events_file=out, observer=EVENTS_C, sim_flag=sim_flag)
+    return RunSetup(events_file=out, observer=EVENTS_C, sim_flag=sim_flag, stop_levels=levels)
+
+
+STOP_LINES = {"on": "invert_on", "plus_dir": "invert_plus_dir", "minus_dir": "invert_minus_dir"}
+
+
+def stop_levels(machine_path: Path) -> dict[int, tuple[bool, str]]:
+    """The carousel's output lines at their Stop-row level on the wire (the line's invert flag: an inverted line
+    stops with TRUE), by coil; {} without a carousel or a readable description (its own check reports that)."""
+    if not machine_path.is_file():
+        return {}
+    data, ck = machine.load(machine_path)
+    if data is None or ck.problems or "carousel" not in data:
+        return {}
+    car = data["carousel"]
+    out = {}
+    for key, channel in machine.line_channels(data).items():
+        if key in STOP_LINES:
+            invert = bool(car.get(STOP_LINES[key], False))
+            name = machine.LINES[key][0]
+            why = f"{name} is {'inverted' if invert else 'not inverted'} ({STOP_LINES[key]} = " \
+                  f"{'true' if invert else 'false'} in {machine_path.name})"
+            out[channel] = (invert, why)
+    return out

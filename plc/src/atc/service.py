@@ -233,6 +233,11 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: r
         cfg = dataclasses.replace(cfg, sim_flag=setup.sim_flag)
     if cfg.io == "sim":
         cfg = dataclasses.replace(cfg, io_chosen=True)      # refused before unless deployed with --simulated
+    wrong = runtime.stop_level_problems(cfg, setup.stop_levels) if cfg.io == "modbus" else []
+    if wrong:
+        shutil.rmtree(work, ignore_errors=True)
+        raise DeployError("\n".join([f"{config or 'the run configuration'}: the remote I/O would not stop the machine "
+                                      "when the runtime stops:", *wrong]))
     try:
         with tempfile.TemporaryDirectory(prefix="plc-deploy-") as build:
             binary = runtime.build_runtime(work / "program.c", Path(build), observer=setup.observer)

@@ -66,7 +66,7 @@ def run_configuration(args, root: Path | None) -> Path | None:
     why = "the sources are outside the project" if project_cfg is not None and project_cfg.exists() \
         else "no project configs/runtime.toml found"
     print(f"plc run: no run configuration ({why}): built-in defaults, retain file "
-          f"{runtime.DEFAULT_RETAIN_FILE}; located RETAIN variables are kept, other retained registers only "
+          f"{args.retain or runtime.DEFAULT_RETAIN_FILE}; located RETAIN variables are kept, other retained registers only "
           "with --config", file=sys.stderr)
     return None
 
@@ -89,7 +89,7 @@ def cmd_run(args) -> int:
     args.paths = paths
     args.config = run_configuration(args, root)
     setup = _run_setup(root, Path(args.build_dir)) if in_project else extensions.RunSetup()
-    args.events_file, args.observer = setup.events_file, setup.observer
+    args.events_file, args.observer, args.run_setup = setup.events_file, setup.observer, setup
     if args.sim_flag is None:
         args.sim_flag = setup.sim_flag
     c_file = Path(args.build_dir) / "program" / "program.c"

@@ -45,6 +45,9 @@ class RunSetup:
     events_file: Path | None = None     # --events: the description the application's events read
     observer: Path | None = None        # C source of the application's events (monitor.h), linked into the runtime
     sim_flag: str | None = None         # --sim-flag: the input (%IXa.b) telling the program its plant is simulated
+    # coils whose level on the wire when the runtime stops is prescribed (bit index -> (level, why)): a remote I/O
+    # device's `safe` values must give them that level (an inverted motor line is stopped by TRUE)
+    stop_levels: dict[int, tuple[bool, str]] = field(default_factory=dict)
 
 
 @dataclass

@@ -207,6 +207,7 @@ class RunConfig:
     io: str = "sim"                                  # the default: outputs loop back to inputs
     io_chosen: bool = False                          # the layer was asked for (--io, [io] layer), not the default
     io_devices: list[str] = dataclasses.field(default_factory=list)   # --io-device specs ([[io.device]])
+    devices: list[io_config.IoDevice] = dataclasses.field(default_factory=list)   # the same, as checked
     retain_file: Path | None = None                  # None: DEFAULT_RETAIN_FILE
     retain_interval_ms: int = 200
     retain_registers: list[str] = dataclasses.field(default_factory=list)
@@ -343,6 +344,7 @@ def load_config(path: Path) -> RunConfig:
         devices, problems = io_config.check_devices(path, text, io["device"], ck)
         if not problems:
             cfg.io_devices = io_config.device_specs(devices)
+            cfg.devices = devices
     if cfg.io == "modbus" and "device" not in io:
         ck.error(("io", "layer"), "[io] layer: layer \"modbus\" needs at least one [[io.device]]")
 
@@ -380,6 +382,28 @@ def load_config(path: Path) -> RunConfig:
         raise ConfigError(f"{len(ck.problems)} problem(s) in the run configuration {path}:\n"
                           + "\n".join(ck.in_file_order()), ck.in_file_order())
     return cfg
+
+
+def stop_level_problems(cfg: RunConfig, levels: dict[int, tuple[bool, str]]) -> list[str]:
+    """Every coil of a remote I/O device whose `safe` value (what the device gets when the runtime stops, faults or
+    loses its scan) differs from the level the application prescribes for it; one line each."""
+    out = []
+    for dev in cfg.devices:
+        for r in dev.ranges:
+            if not (r.kind.output and r.kind.bits):
+                continue
+            for k in range(r.count):
+                bit = r.image + k
+                if bit not in levels:
+                    continue
+                level, why = levels[bit]
+                safe = bool(r.safe[k]) if r.safe else False
+                if safe != level:
+                    out.append(f"  [[io.device]] {dev.index} ({dev.name}) {r.kind.key} {r.nth + 1}: "
+                               f"%QX{bit // 8}.{bit % 8} (device coil {r.address + k}) is "
+                               f"{'true' if safe else 'false'} when stopped, but {why}: its stop level is "
+                               f"{'true' if level else 'false'}; set its `safe` value")
+    return out
 
 
 def check_discrete_input(where: str, value: Any) -> str:
@@ -525,6 +549,12 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     if not cfg.io_chosen:
         simulated = " (the program's simulated plant is off: --io sim runs it)" if cfg.sim_flag else ""
         print(f"plc run: I/O layer sim by default: outputs loop back to inputs{simulated}", file=sys.stderr)
+    setup = getattr(args, "run_setup", None)
+    if setup is not None and cfg.io == "modbus":
+        wrong = stop_level_problems(cfg, setup.stop_levels)
+        if wrong:
+            raise ConfigError("\n".join([f"{args.config or 'the run configuration'}: the remote I/O would not stop "
+                                          "the machine when the runtime stops:", *wrong]))
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
     binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize, observer=getattr(args, "observer", None))
     try:

@@ -60,7 +60,7 @@ static void sim_close(void *state)
 
 const io_layer_t io_sim_layer = {
     .name = "sim",
-    .description = "simulated plant (outputs loop back to inputs; --sim-flag raises the program's own flag)",
+    .description = "outputs loop back to inputs; with --sim-flag the program's own simulated plant",
     .open = sim_open,
     .read_inputs = sim_read_inputs,
     .write_outputs = sim_write_outputs,
