@@ -229,15 +229,12 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: r
     (work / "lib").mkdir(parents=True)
     (work / "program.c").write_text(res.c_text)
     setup = _application_setup(sources, work)
-    if cfg.sim_flag is None:
-        cfg = dataclasses.replace(cfg, sim_flag=setup.sim_flag)
-    if cfg.io == "sim":
-        cfg = dataclasses.replace(cfg, io_chosen=True)      # refused before unless deployed with --simulated
-    wrong = runtime.stop_level_problems(cfg, setup.stop_levels) if cfg.io == "modbus" else []
-    if wrong:
+    cfg = dataclasses.replace(cfg, io_chosen=cfg.io_chosen or cfg.io == "sim")   # sim: refused unless --simulated
+    try:
+        runtime.apply_application(cfg, setup, config or "the run configuration")
+    except runtime.ConfigError as exc:
         shutil.rmtree(work, ignore_errors=True)
-        raise DeployError("\n".join([f"{config or 'the run configuration'}: the remote I/O would not stop the machine "
-                                      "when the runtime stops:", *wrong]))
+        raise DeployError(str(exc)) from None
     try:
         with tempfile.TemporaryDirectory(prefix="plc-deploy-") as build:
             binary = runtime.build_runtime(work / "program.c", Path(build), observer=setup.observer)

@@ -89,9 +89,7 @@ def cmd_run(args) -> int:
     args.paths = paths
     args.config = run_configuration(args, root)
     setup = _run_setup(root, Path(args.build_dir)) if in_project else extensions.RunSetup()
-    args.events_file, args.observer, args.run_setup = setup.events_file, setup.observer, setup
-    if args.sim_flag is None:
-        args.sim_flag = setup.sim_flag
+    args.run_setup = setup
     c_file = Path(args.build_dir) / "program" / "program.c"
     c_file.parent.mkdir(parents=True, exist_ok=True)
     if not c_file.exists() or c_file.read_text() != res.c_text:

@@ -61,6 +61,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from . import io_config
+from .extensions import RunSetup
 from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
 
 NO_EVENTS = "events_none.c"       # the runtime without application events; an observer's C source replaces it
@@ -384,6 +385,18 @@ def load_config(path: Path) -> RunConfig:
     return cfg
 
 
+def apply_application(cfg: RunConfig, setup: RunSetup, where: object) -> None:
+    """Lay what an application adds (plc.extensions.RunSetup) under a run configuration: its simulation flag
+    unless the configuration or the command line names one; a remote I/O layer must stop the application's
+    output lines on their stop levels (ConfigError naming every coil that would not)."""
+    if cfg.sim_flag is None:
+        cfg.sim_flag = setup.sim_flag
+    wrong = stop_level_problems(cfg, setup.stop_levels) if cfg.io == "modbus" else []
+    if wrong:
+        raise ConfigError("\n".join([f"{where}: the remote I/O would not stop the machine when the runtime stops:",
+                                      *wrong]))
+
+
 def stop_level_problems(cfg: RunConfig, levels: dict[int, tuple[bool, str]]) -> list[str]:
     """Every coil of a remote I/O device whose `safe` value (what the device gets when the runtime stops, faults or
     loses its scan) differs from the level the application prescribes for it; one line each."""
@@ -543,20 +556,16 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
         cfg.retain_file = args.retain
     if getattr(args, "no_monitor", False):
         cfg.monitor = False
-    cfg.events_file = getattr(args, "events_file", None)
     if getattr(args, "sim_flag", None) is not None:
         cfg.sim_flag = check_discrete_input("--sim-flag", args.sim_flag)
+    setup = getattr(args, "run_setup", None) or RunSetup()
+    cfg.events_file = setup.events_file
+    apply_application(cfg, setup, args.config or "the run configuration")
     if not cfg.io_chosen:
         simulated = " (the program's simulated plant is off: --io sim runs it)" if cfg.sim_flag else ""
         print(f"plc run: I/O layer sim by default: outputs loop back to inputs{simulated}", file=sys.stderr)
-    setup = getattr(args, "run_setup", None)
-    if setup is not None and cfg.io == "modbus":
-        wrong = stop_level_problems(cfg, setup.stop_levels)
-        if wrong:
-            raise ConfigError("\n".join([f"{args.config or 'the run configuration'}: the remote I/O would not stop "
-                                          "the machine when the runtime stops:", *wrong]))
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
-    binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize, observer=getattr(args, "observer", None))
+    binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize, observer=setup.observer)
     try:
         retain.parent.mkdir(parents=True, exist_ok=True)
         if cfg.monitor:
