@@ -1,6 +1,7 @@
-"""A copy of the project switched to one example machine (`plc machine use NAME`), for the example tests and
-scripts/bench-examples. Only what the machine, the map, the sequences and the application need is copied; an
-empty .git marks the copy as a repository so generated headers name files as in the real one."""
+"""The project as one of its machines sees it (its workspace, `--machine NAME`), for the example tests and
+scripts/bench-examples; and a copy of the project for the tests that edit its files (only what the machine, the
+map, the sequences and the application need is copied; an empty .git marks the copy as a repository so generated
+headers name files as in the real one)."""
 from __future__ import annotations
 
 import os
@@ -10,8 +11,8 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-COPIED = ["st_src", "configs", "modbus_map", "hmi_tags", "docs"]
-EXAMPLES = sorted(p.stem for p in (REPO / "configs" / "examples").glob("*.toml"))
+COPIED = ["st_src", "configs", "modbus_map", "hmi_tags", "docs", "machines", "project.toml"]
+EXAMPLES = sorted(p.parent.name for p in (REPO / "machines").glob("*/machine.toml"))
 # the scan tests every example machine runs (one compiled program per machine)
 SCAN_TESTS = ["iec_tests/machine", "iec_tests/app/FB_AppRig.st"]
 
@@ -22,13 +23,14 @@ def plc(*args: str, cwd: Path, timeout: float = 600) -> subprocess.CompletedProc
                           timeout=timeout, env=env)
 
 
-def project_for(name: str, where: Path) -> Path:
-    """A project copy under `where` whose machine is configs/examples/NAME.toml, everything regenerated."""
-    root = copy_project(where / name)
-    result = plc("machine", "use", name, cwd=root)
+def project_for(name: str) -> Path:
+    """The workspace of machine NAME (build/machines/NAME/), built by `plc machine check --machine NAME`; the
+    project itself for its default machine."""
+    result = plc("machine", "check", "--machine", name, cwd=REPO)
     if result.returncode != 0:
-        raise RuntimeError(f"plc machine use {name} failed:\n{result.stderr}")
-    return root
+        raise RuntimeError(f"plc machine check --machine {name} failed:\n{result.stderr}")
+    workspace = REPO / "build" / "machines" / name
+    return workspace if workspace.is_dir() and name != "default" else REPO
 
 
 def copy_project(root: Path) -> Path:
@@ -38,7 +40,10 @@ def copy_project(root: Path) -> Path:
     root.mkdir(parents=True)
     (root / ".git").mkdir()
     for rel in COPIED:
-        shutil.copytree(REPO / rel, root / rel, ignore=shutil.ignore_patterns("var", "*.retain"))
+        if (REPO / rel).is_file():
+            shutil.copy2(REPO / rel, root / rel)
+        else:
+            shutil.copytree(REPO / rel, root / rel, ignore=shutil.ignore_patterns("var", "*.retain"))
     for rel in SCAN_TESTS:
         src, dst = REPO / rel, root / rel
         dst.parent.mkdir(parents=True, exist_ok=True)

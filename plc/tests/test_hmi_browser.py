@@ -2,7 +2,7 @@
 
 The real application runs on our runtime with the simulated carousel and its monitor; `plc hmi` serves the page
 on a free loopback port.  Checked as an operator would see it: the page loads with the carousel drawn from the
-map and configs/machine.toml; during T3 M6 the carousel turns (motion shown) to pocket 3 and tool 3 arrives in
+map and machines/default/machine.toml; during T3 M6 the carousel turns (motion shown) to pocket 3 and tool 3 arrives in
 the spindle; a forced input (the simulated plant switched off: the application then sees the open E-stop
 chain) changes the program's behaviour, shows as forced, and the fault appears with its text, cause and
 remedy; without the token every command and force is refused and nothing reaches the PLC.  A screenshot is
@@ -124,7 +124,7 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
         assert "toolchanger" in b.title
         wait_page(b, lambda b: text(b, "plc-link") == "connected", 10, "the page to reach the PLC")
         pockets = b.find_elements(By.CSS_SELECTOR, ".pocket")
-        assert len(pockets) == 6, "configs/machine.toml: 6 pockets"
+        assert len(pockets) == 6, "machines/default/machine.toml: 6 pockets"
         wait_page(b, lambda b: text(b, "spindle-tool") == "T0", 10, "the empty spindle")
         assert b.find_elements(By.CSS_SELECTOR, "#iolines tr[data-signal=ToolPrepare]"), "iov2 lines from the map"
 

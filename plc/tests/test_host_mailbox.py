@@ -212,14 +212,14 @@ def test_a_dialog_cancelled_aborts_the_change_with_a_fault(dialog_plc):
 
 # ---- the example rack machine (configs/examples/rack8): fixed pockets, positions from Q coordinates ------------
 
-RACK = REPO / "configs" / "examples" / "rack8"          # its sequences; the machine is rack8.toml beside it
+RACK = REPO / "machines" / "rack8" / "sequences"          # its sequences; the machine is rack8.toml beside it
 
 
 @pytest.fixture(scope="module")
 def rack_plc(tmp_path_factory):
     from machine_project import project_for
     tmp = tmp_path_factory.mktemp("rack")
-    root = project_for("rack8", tmp)            # a copy of the project after `plc machine use rack8`
+    root = project_for("rack8")                 # its workspace (--machine rack8)
     p = Plc(tmp)
     p.src = root / "st_src"
     p.start(timeout=600.0)

@@ -29,7 +29,7 @@ def free_port() -> int:
 
 
 class Plc:
-    """`plc run st_src --config configs/runtime.toml` on a free port with its own retain file."""
+    """`plc run st_src --config machines/default/runtime.toml` on a free port with its own retain file."""
 
     def __init__(self, tmp: Path):
         self.tmp, self.port, self.proc = tmp, free_port(), None
@@ -38,7 +38,7 @@ class Plc:
 
     def start(self, timeout: float = 180.0) -> None:
         cmd = [sys.executable, "-m", "plc.cli", "run", str(self.src), "--config",
-               str(REPO / "configs" / "runtime.toml"), "--port", str(self.port), "--retain",
+               str(REPO / "machines" / "default" / "runtime.toml"), "--port", str(self.port), "--retain",
                str(self.tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")]
         if self.src != REPO / "st_src":
             # a copy outside the project gets no application setup from it: the copy's simulated plant by name

@@ -1,4 +1,4 @@
-"""plc machine: configs/machine.toml is checked with file:line errors and generates FB_MachineConfig reproducibly."""
+"""plc machine: machines/default/machine.toml is checked with file:line errors and generates FB_MachineConfig reproducibly."""
 from __future__ import annotations
 
 import os
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-CONFIG = ROOT / "configs" / "machine.toml"
+CONFIG = ROOT / "machines" / "default" / "machine.toml"
 GENERATED = ROOT / "st_src" / "app" / "generated" / "FB_MachineConfig.st"
 
 
@@ -84,12 +84,12 @@ def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
     assert "pocket_codes: code 5 is used twice" in proc.stderr
 
 
-RACK = ROOT / "configs" / "examples" / "rack8.toml"
+RACK = ROOT / "machines" / "rack8" / "machine.toml"
 
 
 def test_a_rack_machine_generates_fixed_pockets_and_its_positions(tmp_path):
     from machine_project import project_for
-    root = project_for("rack8", tmp_path)             # a copy of the project after `plc machine use rack8`
+    root = project_for("rack8")                       # its workspace (--machine rack8)
     st = (root / "st_src" / "app" / "generated" / "FB_MachineConfig.st").read_text()
     assert "FixedPockets := TRUE;" in st and "RackPlant.positions := 8;" in st
     assert "RackPlant.x[8] := 105000;" in st and "RackPlant.y[1] := 150000;" in st   # mm -> 1/1000 mm
@@ -101,7 +101,7 @@ def test_a_rack_machine_generates_fixed_pockets_and_its_positions(tmp_path):
     assert f"Channels.toolPresent := {tool_present};" in st
     table = (root / "configs" / "linuxcnc" / "atc-sim.tbl").read_text().splitlines()
     assert [int(re.match(r"T(\d+) P(\d+)", row).group(2)) for row in table] == list(range(1, 9)), table
-    seqs = (root / "configs" / "examples" / "rack8" / "sequences.toml").read_text()
+    seqs = (root / "machines" / "rack8" / "sequences" / "sequences.toml").read_text()
     assert re.search(r"(?m)^tools = 8\b", seqs)
     assert "FixedPockets := FALSE;" in GENERATED.read_text()
 

@@ -1,5 +1,5 @@
-"""Every example machine of configs/examples/, commissioned end to end in a copy of the project switched to it
-with `plc machine use NAME`: the machine scan tests (iec_tests/machine: a change to every pocket, the shorter way
+"""Every machine of the project beside the default (machines/NAME/), commissioned end to end in its workspace
+(`--machine NAME`): the machine scan tests (iec_tests/machine: a change to every pocket, the shorter way
 and the tie, abort and E-stop mid-turn at the Stop row, stuck motor and dead sensor faults) in one compiled program
 per machine, then `plc run --io sim` served on a free loopback port and a `T<n> M6` over Modbus with `plc host`.
 Every wait is bounded generously (a hang, not speed, fails a test)."""
@@ -31,11 +31,11 @@ def free_port() -> int:
 
 @pytest.fixture(scope="module", params=[n for n in EXAMPLES if n != "default"])
 def example(request, tmp_path_factory):
-    return request.param, project_for(request.param, tmp_path_factory.mktemp("examples"))
+    return request.param, project_for(request.param)
 
 
-def pockets_of(root: Path) -> int:
-    text = (root / "configs" / "machine.toml").read_text()
+def pockets_of(root: Path, name: str) -> int:
+    text = (root / "machines" / name / "machine.toml").read_text()
     return int(re.search(r"(?m)^(?:pockets|positions)\s*=\s*(\d+)", text).group(1))
 
 
@@ -54,13 +54,13 @@ def test_plc_deploy_openplc_bundles_the_example(example):
     assert result.returncode == 0, f"{name}:\n{result.stderr}"
     text = out.read_text()
     assert "CONFIGURATION Config0" in text and "FUNCTION_BLOCK FB_MachineConfig" in text
-    pockets = pockets_of(root)
+    pockets = pockets_of(root, name)
     assert f"Rotary.pockets := {pockets};" in text
 
 
 def carousel_only(name: str, root: Path, what: str) -> None:
     """Skip, with the reason printed, a carousel test on a machine without a carousel (kind = "fixed-pockets")."""
-    text = (root / "configs" / "machine.toml").read_text()
+    text = (root / "machines" / name / "machine.toml").read_text()
     if re.search(r'(?m)^kind\s*=\s*"fixed-pockets"', text):
         reason = (f"{name}: {what} (iec_tests/machine) drive a carousel; this rack machine has none, its plant "
                   "is tested by iec_tests/sequence/TEST_RackPlantPutsAndGetsAtItsPositions.st and "
@@ -93,7 +93,7 @@ def test_plc_run_with_the_example_completes_an_m6_over_modbus(example):
             assert proc.poll() is None, f"{name}: plc run exited {proc.returncode}:\n{log.read_text()[-3000:]}"
             assert time.monotonic() < deadline, f"{name}: plc run did not listen:\n{log.read_text()[-3000:]}"
             time.sleep(0.1)
-        tool = 1 + pockets_of(root) // 2
+        tool = 1 + pockets_of(root, name) // 2
         result = plc("host", "--port", str(port), f"T{tool} M6", cwd=root, timeout=300 * SLOW)
         assert result.returncode == 0, f"{name}: exit {result.returncode}\n{result.stdout}\n{result.stderr}"
         assert result.stdout.splitlines()[-1] == f"tool {tool} in spindle", result.stdout

@@ -2,7 +2,7 @@
 a wrong machine file gets a positioned error from `plc machine check` and stops `plc run` before anything runs;
 stale generated files (machine, map, sequences) are refused by `plc run` and `plc test`, naming the command that
 regenerates them; `plc machine generate` carries a new pocket count into the sequences, the tool table and the
-register map; `plc machine use` switches to an example and back."""
+register map; another machine of the project is built in its workspace, rewriting no project file."""
 from __future__ import annotations
 
 import re
@@ -12,7 +12,7 @@ import pytest
 
 from machine_project import copy_project, plc
 
-MACHINE = "configs/machine.toml"
+MACHINE = "machines/default/machine.toml"
 
 
 @pytest.fixture
@@ -101,15 +101,35 @@ def test_stale_or_broken_sources_are_refused_by_run_and_test(project, what, chan
     assert command in result.stderr and "nothing was run" in result.stderr, result.stderr
 
 
-def test_use_switches_to_an_example_and_back_reproducing_every_file(project):
-    before = {p: p.read_bytes() for d in ("st_src", "configs", "modbus_map", "hmi_tags", "docs")
+def test_a_machine_beside_the_default_is_built_in_its_workspace_and_rewrites_no_project_file(project):
+    """Issue 26: `--machine NAME` builds machines/NAME/ in build/machines/NAME/ (links to the hand-owned files, the
+    files generated for NAME); no file of the project changes, the default machine's files stay as they were."""
+    before = {p: p.read_bytes() for d in ("st_src", "configs", "modbus_map", "hmi_tags", "docs", "machines")
               for p in (project / d).rglob("*") if p.is_file()}
-    result = plc("machine", "use", "carousel-24-separate-inverted", cwd=project)
+    result = plc("machine", "check", "--machine", "carousel-24-separate-inverted", cwd=project)
     assert result.returncode == 0, result.stderr
-    assert "CarouselDirNegative AT %QX2.5" in (project / "st_src/app/AtcMain.st").read_text()
-    assert "CarouselCode5" in (project / "hmi_tags/atc_tags.csv").read_text()
-    assert plc("machine", "use", "default", cwd=project).returncode == 0
+    workspace = project / "build" / "machines" / "carousel-24-separate-inverted"
+    program = workspace / "st_src/app/AtcMain.st"
+    assert not program.is_symlink() and "CarouselDirNegative AT %QX2.5" in program.read_text()
+    assert "CarouselCode5" in (workspace / "hmi_tags/atc_tags.csv").read_text()
+    hand_owned = workspace / "st_src/app/FB_AtcMachine.st"
+    assert hand_owned.is_symlink() and hand_owned.resolve() == (project / "st_src/app/FB_AtcMachine.st").resolve()
+    assert "CarouselDirNegative" not in (project / "st_src/app/AtcMain.st").read_text()
     after = {p: p.read_bytes() for p in before}
     assert [str(p.relative_to(project)) for p in before if before[p] != after[p]] == []
-    unknown = plc("machine", "use", "no-such-machine", cwd=project)
+    listed = plc("machine", "list", cwd=project)
+    assert "default  (default)" in listed.stdout.splitlines() and "rack8" in listed.stdout.splitlines()
+    unknown = plc("machine", "check", "--machine", "no-such-machine", cwd=project)
     assert unknown.returncode == 2 and "known: " in unknown.stderr and "carousel-50" in unknown.stderr
+    assert "Traceback" not in unknown.stderr
+    old = plc("machine", "use", "rack8", cwd=project)
+    assert old.returncode == 2 and "--machine rack8" in old.stderr, old.stderr
+
+
+def test_a_machine_that_does_not_check_builds_no_workspace(project):
+    path = project / "machines" / "carousel-50" / "machine.toml"
+    edit(path, "pockets = 50", "pockets = 60")
+    result = plc("machine", "check", "--machine", "carousel-50", cwd=project)
+    assert result.returncode == 2, result.stderr
+    assert "machines/carousel-50/machine.toml:" in result.stderr and "2..50" in result.stderr, result.stderr
+    assert not (project / "build" / "machines" / "carousel-50").exists()

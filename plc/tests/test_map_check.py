@@ -14,8 +14,8 @@ from atc.map import cli as map_cli
 from atc.map.generate import drift, load_and_check, outputs, write
 
 REPO = Path(__file__).resolve().parents[2]
-GENERATED = ["hmi_tags", "configs/machine.toml", "configs/sequences", "configs/linuxcnc/atc_mb2hal.ini", "configs/linuxcnc/atc_iov2.hal",
-             "configs/linuxcnc/atc_io.hal", "configs/runtime.toml", "docs/register-map.md"]
+GENERATED = ["hmi_tags", "machines/default/machine.toml", "configs/sequences", "configs/linuxcnc/atc_mb2hal.ini", "configs/linuxcnc/atc_iov2.hal",
+             "configs/linuxcnc/atc_io.hal", "project.toml", "docs/register-map.md"]
 
 
 @pytest.fixture
@@ -251,7 +251,7 @@ def test_program_file_needs_its_markers(project):
 
 
 @pytest.mark.parametrize("rel", ["hmi_tags/atc_tags.csv", "configs/linuxcnc/atc_iov2.hal", "docs/register-map.md",
-                                 "st_src/app/AtcMain.st", "configs/runtime.toml"])
+                                 "st_src/app/AtcMain.st", "configs/linuxcnc/atc_mb2hal.ini"])
 def test_drift_of_any_generated_file_fails_and_generate_repairs_it(project, rel):
     path = project / rel
     lines = path.read_text().splitlines(keepends=True)
@@ -286,8 +286,8 @@ def test_generate_is_reproducible_and_writes_nothing_the_second_time(project):
 def test_a_carousel_line_on_a_taken_channel_names_both_files(project):
     """The carousel lines come from the machine description: a channel another signal of the map uses is an
     error at the machine's line that names the map's line."""
-    machine = project / "configs" / "machine.toml"
+    machine = project / "machines" / "default" / "machine.toml"
     line = edit(machine, "home = 17 ", "home = 19 ")
     msg = one_error(check(project), "is already taken by")
-    assert msg.startswith(f"configs/machine.toml:{line}:") or "configs/machine.toml" in msg, msg
+    assert msg.startswith(f"machines/default/machine.toml:{line}:") or "machines/default/machine.toml" in msg, msg
     assert "modbus_map/map.toml:" in msg, msg

@@ -19,7 +19,9 @@ from atc.map.gen_linuxcnc import plan
 from atc.map.generate import load_and_check, outputs
 from atc.map.model import iec_address
 from plc.parser import parse
-from plc.runtime import load_config
+from plc.runtime import RunConfig, apply_application, load_config
+
+from atc.runsetup import runtime_setup
 
 REPO = Path(__file__).resolve().parents[2]
 LOADED = load_and_check(REPO / "modbus_map" / "map.toml", Diagnostics())
@@ -234,10 +236,19 @@ def test_hal_settles_the_request_bits_and_watches_the_plc_link():
     assert "net atc-plc-alive mb2hal.atc-bits-in.PlcAlive.bit => atc-link-watch.in" in text
 
 
-def test_runtime_config_allows_writes_only_to_host_signals_and_keeps_the_retained(tmp_path):
-    path = tmp_path / "runtime.toml"
-    path.write_text(OUT["configs/runtime.toml"])
-    cfg = load_config(path)
+def test_a_run_allows_writes_only_to_host_signals_and_keeps_the_retained(tmp_path):
+    """Issue 26: the map's ranges reach a run through the application's run setup, never written into the
+    user's run configuration; a range the user's file sets is the user's."""
+    setup = runtime_setup(REPO / "modbus_map" / "map.toml", tmp_path)
+    cfg = RunConfig()
+    apply_application(cfg, setup, "test")
+    own = tmp_path / "own.toml"
+    own.write_text('[modbus]\nwritable_registers = ["512"]\n')
+    mine = load_config(own)
+    apply_application(mine, setup, own)
+    assert mine.writable_registers == ["512-512"] and mine.writable_coils == cfg.writable_coils
+    assert not any(key in (REPO / "machines" / "default" / "runtime.toml").read_text()
+                   for key in ("writable_coils", "writable_registers", "registers ="))
 
     def expand(ranges):
         out = set()

@@ -76,7 +76,7 @@ def run_chain(tmp: Path, hal_text: str, prepares: int) -> list[str]:
     (src / "Echo.st").write_text(echo_program(loaded.rmap))
     plc_log = open(tmp / "plc.log", "wb")
     plc = subprocess.Popen([sys.executable, "-m", "plc.cli", "run", str(src), "--config",
-                            str(REPO / "configs" / "runtime.toml"), "--port", str(port), "--retain",
+                            str(REPO / "machines" / "default" / "runtime.toml"), "--port", str(port), "--retain",
                             str(tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")],
                            cwd=REPO / "plc", stdout=plc_log, stderr=subprocess.STDOUT)
     hal = None

@@ -178,7 +178,7 @@ def test_bad_configs_are_rejected_with_the_place_and_the_reason(tmp_path, text, 
 
 
 def test_the_shipped_config_pins_nothing_and_its_cpu_example_is_valid(tmp_path):
-    shipped = PLC_ROOT.parent / "configs" / "runtime.toml"
+    shipped = PLC_ROOT.parent / "machines" / "default" / "runtime.toml"
     assert runtime.load_config(shipped).cpu is None
     text = shipped.read_text()
     assert "\n# [scan]\n# cpu = 1 " in text

@@ -6,9 +6,8 @@ changes are driven by `plc host "T<n> M6"` as an integrator would.
 Every wait is bounded by a generous time-out (SLOW); no verdict depends on how fast the machine is.  The timing
 figures (comm loss -> outputs safe, sensor -> output latency) are measured by scripts/bench-io-modbus.
 
-A machine is one line of MACHINES: the project's machine (default) or an example of configs/examples/ (a
-project copy switched with `plc machine use`); the module's mechanics (pockets, pocket codes, direction
-wiring) are read from it.
+A machine is one line of MACHINES: a machine of the project (machines/NAME/), made the default machine of a
+project copy; the module's mechanics (pockets, pocket codes, direction wiring) are read from it.
 """
 from __future__ import annotations
 
@@ -39,7 +38,7 @@ from atc.host.tags import Tags, load_map  # noqa: E402
 REPO = Path(__file__).resolve().parents[2]
 MAP_FILE = REPO / "modbus_map" / "map.toml"
 RMAP = load_map(MAP_FILE)
-from machine_project import copy_project, plc as plc_in, project_for  # noqa: E402
+from machine_project import copy_project, plc as plc_in  # noqa: E402
 
 
 def signals_of(root: Path) -> dict[str, int]:
@@ -55,7 +54,7 @@ DIAG_STATE, DIAG_GARBAGE, DIAG_EXCEPTIONS = 0, 5, 6
 STATE_OK, STATE_LOST = 2, 3
 REASON_MODULE_1_LOST = -111
 
-# One line per machine; the code-input carousel of configs/examples/ joins here as a second pytest.param.
+# One line per machine; the code-input carousel of machines/ joins here as a second pytest.param.
 MACHINES = [
     pytest.param("default", id="default"),
     pytest.param("seed-pocket-code", id="seed-pocket-code"),   # a code-input carousel (3 code inputs)
@@ -116,9 +115,9 @@ def status_input(n: int) -> str:
 
 
 def run_config(path: Path, devices: list[dict]) -> Path:
-    """The project's run configuration (host-writable ranges, retained registers) with [[io.device]] tables
+    """The default machine's run configuration (the map gives the host-writable ranges and retained registers) with [[io.device]] tables
     (values that are inline TOML already, like the ranges, are written as they are)."""
-    base = tomllib.loads((REPO / "configs" / "runtime.toml").read_text())
+    base = tomllib.loads((REPO / "machines" / "default" / "runtime.toml").read_text())
     lines = ["[modbus]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("modbus", {}).items()]
     lines += ["", "[retain]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("retain", {}).items() if k != "file"]
     lines += ["", "[io]", 'layer = "modbus"']
@@ -227,10 +226,11 @@ RESPONSE_TIMEOUT_MS = int(min(250 * SLOW, 1000))
 
 
 def project(machine: str, tmp: Path) -> Path:
-    """A copy of the project for the machine (the default one, or an example of configs/examples/ switched to
-    with `plc machine use`), with the rig's generous link and carousel time-outs, everything regenerated."""
-    root = copy_project(tmp / "project" / machine) if machine == "default" else project_for(machine, tmp / "project")
-    for rel, values in (("modbus_map/map.toml", RIG_LINK), ("configs/machine.toml", RIG_MACHINE)):
+    """A copy of the project whose default machine is `machine` (project.toml), with the rig's generous link and
+    carousel time-outs, everything regenerated."""
+    root = copy_project(tmp / "project" / machine)
+    (root / "project.toml").write_text(f'[project]\nmachine = "{machine}"\n')
+    for rel, values in (("modbus_map/map.toml", RIG_LINK), (f"machines/{machine}/machine.toml", RIG_MACHINE)):
         path = root / rel
         text = path.read_text()
         for key, value in values.items():
@@ -260,7 +260,7 @@ def make_rig(tmp: Path, transport: str, machine_name: str, units: tuple[int, ...
     """The module and `plc run --io modbus`; with several units (RTU), the inputs come from the first unit and
     the outputs go to the second, two devices on one line."""
     root = project(machine_name, tmp)
-    machine = tomllib.loads((root / "configs" / "machine.toml").read_text())
+    machine = tomllib.loads((root / "machines" / machine_name / "machine.toml").read_text())
     wiring = wiring_for(machine, signals_of(root))
     serial = None
     if transport == "rtu":

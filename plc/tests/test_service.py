@@ -23,6 +23,9 @@ import pytest
 import rt_harness as h  # noqa: E402
 from plc import retainfile  # noqa: E402
 
+from atc.host.tags import load_map  # noqa: E402
+from atc.map.run_ranges import retained_registers  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[2]
 TOOL = "CONFIG0.RES0.ATC.TOOLINSPINDLE"
 
@@ -43,7 +46,7 @@ def deployment(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("deploy") / "atc-plc"
     result = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out), "--simulated")
     assert result.returncode == 0, result.stderr
-    assert f"run configuration {REPO / 'configs' / 'runtime.toml'}" in result.stderr
+    assert f"run configuration {REPO / 'machines' / 'default' / 'runtime.toml'}" in result.stderr
     assert "warning: --simulated: this service runs the simulated plant" in result.stderr
     return out
 
@@ -51,21 +54,34 @@ def deployment(tmp_path_factory) -> Path:
 # ---------------------------------------------------------------------------- the unit
 
 def test_the_simulated_plant_is_deployed_only_when_asked_and_then_says_so(deployment, tmp_path):
-    """Issue 26: the shipped run configuration runs the simulated plant; a service built from it would answer M6
-    as done while nothing moves. Without --simulated it is refused and nothing is written; a configuration with
-    another I/O layer deploys without it, and its runtime does not run the simulation."""
+    """Issue 26: the default machine's run configuration names no I/O layer. Without --simulated the service runs
+    with none (nothing moves, so no change is answered as done) and says so; a configuration naming the simulated
+    plant is refused without --simulated, nothing written; with --simulated the unit, its README and the output
+    say it is a simulation."""
+    out = tmp_path / "none"
+    plain = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out))
+    assert plain.returncode == 0, plain.stderr
+    assert "names no I/O layer ([io] layer): the service runs with none (nothing moves)" in plain.stderr
+    run = (out / "current" / "run").read_text()
+    assert "--io none" in run and "--io sim" not in run and "--sim-flag" not in run, run
+    assert "SIMULATED" not in (out / "atc-plc.service").read_text()
+    assert f"run configuration {REPO / 'machines' / 'default' / 'runtime.toml'}" in plain.stderr
+
+    asked = tmp_path / "sim.toml"
+    asked.write_text('[io]\nlayer = "sim"\n')
     out = tmp_path / "refused"
-    refused = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out))
+    refused = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out), "--config", str(asked))
     assert refused.returncode == 2, refused.stderr
     assert 'layer = "sim": the service would run the simulated plant' in refused.stderr
     assert "Traceback" not in refused.stderr and not out.exists(), "nothing written"
+
     unit = (deployment / "atc-plc.service").read_text()
     assert re.search(r"^Description=.*SIMULATED PLANT, no machine I/O$", unit, re.M), unit
     assert "**This service runs the simulated plant**" in (deployment / "README.md").read_text()
     assert "--io sim" in (deployment / "current" / "run").read_text()
 
     real = tmp_path / "runtime.toml"
-    real.write_text((REPO / "configs" / "runtime.toml").read_text().replace('layer = "sim"', 'layer = "none"'))
+    real.write_text('[io]\nlayer = "none"\n')
     out = tmp_path / "machine"
     ok = plc_cli("deploy", "service", "--out", str(out), "--prefix", str(out), "--config", str(real))
     assert ok.returncode == 0, ok.stderr
@@ -88,7 +104,7 @@ def test_the_unit_asks_for_what_a_machine_needs(deployment):
                  "StandardError=journal", "WantedBy=multi-user.target"):
         assert re.search(rf"^{re.escape(line)}$", unit, re.M), line
     run = (deployment / "current" / "run").read_text()
-    registers = ",".join(tomllib.loads((REPO / "configs" / "runtime.toml").read_text())["retain"]["registers"])
+    registers = ",".join(retained_registers(load_map(REPO / "modbus_map" / "map.toml")))
     assert '--retain "$state/plc.retain"' in run and f"--retain-registers {registers}" in run
     layout = (deployment / "current" / "retain-layout.txt").read_text()
     assert f"retain\t{TOOL}\tINT\t%MW0\t2" in layout
@@ -192,7 +208,7 @@ def app_with_tool_change_counter(tmp: Path) -> Path:
 
 
 def test_upgrade_keeps_the_tool_refuses_a_loss_and_rolls_back(deployment, service, tmp_path):
-    config = str(REPO / "configs" / "runtime.toml")
+    config = str(REPO / "machines" / "default" / "runtime.toml")
     restart = f'kill -TERM "$(cat {service.pidfile})"'
     first = (deployment / "current").resolve()
     assert service.host("clear", "T5 M6").splitlines()[-1] == "tool 5 in spindle"
@@ -266,9 +282,10 @@ class PlcRun:
 
 def test_plc_run_with_paths_keeps_the_tool_through_a_program_with_one_retain_variable_more(tmp_path):
     """The issue's scenario: plc run st_src, T5 M6, stop; one RETAIN variable more; plc run again: tool 5."""
-    first = PlcRun(tmp_path, [REPO / "st_src"])
+    first = PlcRun(tmp_path, [REPO / "st_src"], "--io", "sim")
     try:
-        assert f"plc run: using {REPO / 'configs' / 'runtime.toml'} (the project's run configuration)" in first.text()
+        assert f"plc run: using {REPO / 'machines' / 'default' / 'runtime.toml'} (the project's run "\
+               "configuration)" in first.text()
         assert first.host("clear", "T5 M6").splitlines()[-1] == "tool 5 in spindle"
     finally:
         first.stop()

@@ -12,7 +12,7 @@ from atc.runsetup import stop_levels
 from plc import runtime
 
 REPO = Path(__file__).resolve().parents[2]
-INVERTED = REPO / "configs" / "examples" / "carousel-24-separate-inverted.toml"
+INVERTED = REPO / "machines" / "carousel-24-separate-inverted" / "machine.toml"
 
 
 def device_config(path: Path, safe: str | None) -> Path:
@@ -29,7 +29,7 @@ def test_the_stop_levels_are_the_invert_flags_of_the_used_output_lines():
     assert inverted and all(level for level, _ in inverted.values())
     assert all("inverted" in why and "invert_" in why for _, why in inverted.values())
     assert set(inverted) <= set(range(800)) and "separate" in text       # +DIR and -DIR, no Output ON
-    plain = stop_levels(REPO / "configs" / "machine.toml")
+    plain = stop_levels(REPO / "machines" / "default" / "machine.toml")
     assert plain == {16: (False, plain[16][1]), 20: (False, plain[20][1])}
     assert "CarouselMotorOn is not inverted (invert_on = false" in plain[16][1]
 

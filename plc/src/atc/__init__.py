@@ -1,6 +1,6 @@
 """atc-plc, the tool-changer application on top of the plc toolchain.
 
-    machine    the machine description (configs/machine.toml) and everything generated from it
+    machine    the machine description (machines/default/machine.toml) and everything generated from it
     map        the register map (modbus_map/): checks and generators
     seq        the tool-change sequence language: parser, checker, ST step tables
     host       `plc host`: a CNC host client speaking the register map (the iov2 host end)

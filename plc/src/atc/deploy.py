@@ -23,7 +23,7 @@ from plc.diagnostics import Diagnostics, Pos, SourceSet
 from plc.driver import collect_files, compile_sources, display_name, load_user_file
 from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS, OPENPLC_SLAVE_FIRST_BYTE
 from plc.parser import parse
-from plc.project import project_root
+from plc.project import add_view_options, project_root
 
 from . import service
 from .freshness import problems
@@ -227,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "I/O module's discrete inputs 0-31 at %%IX100.0-%%IX103.7, its coils 0-7 at "
                         "%%QX100.0-%%QX100.7 (the module of `plc run --io modbus` serves both runtimes)")
     o.add_argument("-q", "--quiet", action="store_true", help="print errors only")
+    add_view_options(o)
     service.add_parsers(sub)
     return p
 

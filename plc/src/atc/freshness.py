@@ -1,26 +1,24 @@
 """Are the generated files of the project up to date with their sources?
 
 `plc run` and `plc test` refuse to run a program built from stale generated files: the machine description
-(configs/machine.toml -> FB_MachineConfig, tool table, the sequence set's tool count), the register map
+(machines/default/machine.toml -> FB_MachineConfig, tool table, the sequence set's tool count), the register map
 (modbus_map/ -> AtcMain's declarations and wiring, HMI tags, LinuxCNC files, docs) and the sequences
 (the machine's [sequences] index, default configs/sequences/ -> SequenceTables.st). Each problem names the command that regenerates the files.
 """
 from __future__ import annotations
 
 import sys
-import tomllib
 from pathlib import Path
 
 from plc.diagnostics import Diagnostics
 
-from . import generation, machine
+from . import generation, machine, project
 from .map.generate import drift as map_drift
 from .map.generate import load_and_check
 from .seq.assemble import check_set
 from .seq.diagnostics import Diagnostics as SeqDiagnostics
 from .seq.stgen import generate, stable_name
 
-SEQ_INDEX = "configs/sequences/sequences.toml"
 SEQ_TABLES = "st_src/sequence/generated/SequenceTables.st"
 
 
@@ -30,20 +28,20 @@ def problems(root: Path) -> list[str]:
 
 
 def _machine(root: Path) -> list[str]:
-    config = root / machine.DEFAULT_CONFIG
+    rel = project.description(root).as_posix()
+    config = root / rel
     if not config.is_file():
         return []
-    data, ck = machine.load(config, machine.DEFAULT_CONFIG.as_posix())
+    data, ck = machine.load(config, rel)
     if not ck.problems:
-        machine.check_sequences(ck, data, root, machine.DEFAULT_CONFIG.as_posix())
+        machine.check_sequences(ck, data, root, rel)
     if ck.problems:
         return [d.render() for d in ck.problems] + ["  fix the machine description (plc machine check), then run "
                                                     "`plc machine generate`"]
-    files, errors = generation.outputs(root, data, machine.DEFAULT_CONFIG.as_posix())
+    files, errors = generation.outputs(root, data, rel)
     if errors:
         return errors
-    return [f"{rel}: out of date with {machine.DEFAULT_CONFIG.as_posix()}: run `plc machine generate`"
-            for rel in generation.drift(root, files)]
+    return [f"{out}: out of date with {rel}: run `plc machine generate`" for out in generation.drift(root, files)]
 
 
 def _map(root: Path) -> list[str]:
@@ -59,19 +57,8 @@ def _map(root: Path) -> list[str]:
             for rel in map_drift(loaded, Diagnostics(), show_diff=False)]
 
 
-def sequence_index(root: Path) -> str:
-    """The sequence set the machine description names ([sequences] index), relative to root; SEQ_INDEX when the
-    description has none or cannot be read (its own check reports that)."""
-    try:
-        data = tomllib.loads((root / machine.DEFAULT_CONFIG).read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError):
-        return SEQ_INDEX
-    index = data.get("sequences", {}).get("index") if isinstance(data.get("sequences"), dict) else None
-    return index if isinstance(index, str) else SEQ_INDEX
-
-
 def _sequences(root: Path) -> list[str]:
-    rel = sequence_index(root)
+    rel = project.sequence_index(root)
     index, tables = root / rel, root / SEQ_TABLES
     if not index.is_file():
         return []

@@ -7,18 +7,19 @@ the sequence tables, written together or not at all.
 """
 from __future__ import annotations
 
+import argparse
 import re
 import sys
 from pathlib import Path
 
 from plc.diagnostics import Diagnostics
+from plc.project import add_view_options, where
 from plc.project import project_root as find_project
 
+from . import project
 from .machine import (
-    DEFAULT_CONFIG,
     DEFAULT_OUT,
     DEFAULT_SEQUENCES,
-    EXAMPLES,
     MAP_CHANNELS,
     MAP_FILE,
     SEQ_TABLES,
@@ -96,7 +97,7 @@ def check_and_generate(config: Path, out: Path | None, write: bool, label: str |
     register map's files and the sequence tables) or fail when one differs (drift)."""
     root = root or project_root()
     data, ck = load(config, _rel(config, root))
-    if not write and config.resolve() != (root / DEFAULT_CONFIG).resolve():
+    if not write and where(config) != where(root / project.description(root)):
         report(ck)                  # another file (e.g. an example): its own checks only, not the project's
         return 1 if ck.problems else 0
     if not ck.problems:
@@ -163,53 +164,36 @@ def _write(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def use(name: str, root: Path | None = None) -> int:
-    """Switch the project to configs/examples/NAME.toml and regenerate everything."""
-    root = root or project_root()
-    src = root / EXAMPLES / f"{name}.toml"
-    if not src.is_file():
-        known = sorted(p.stem for p in (root / EXAMPLES).glob("*.toml"))
-        print(f"plc machine use: error: no example '{name}' in {EXAMPLES}/ (known: {', '.join(known)})",
-              file=sys.stderr)
-        return 2
-    data, ck = load(src)
-    if ck.problems:
-        report(ck)
-        return 1
-    target = root / DEFAULT_CONFIG
-    previous = target.read_text() if target.exists() else None
-    _write(target, src.read_text())
-    status = check_and_generate(target, None, write=True, label=DEFAULT_CONFIG.as_posix(), root=root)
-    if status != 0 and previous is not None:
-        _write(target, previous)
-        return status
-    print(f"plc machine use: {DEFAULT_CONFIG} is now {EXAMPLES}/{name}.toml; everything regenerated", file=sys.stderr)
-    return status
-
-
 def add_parser(sub) -> None:
-    p = sub.add_parser("machine", help="check the machine description / generate everything from it / switch",
-                       description="The machine description (configs/machine.toml) is the one place the changer "
+    p = sub.add_parser("machine", help="check a machine description / generate everything from it / list machines",
+                       description="A machine description (machines/NAME/machine.toml) is the one place a changer "
                                    "is configured. check: file:line errors, cross-checks with the register map and "
                                    "the sequence set, and drift of every file generated from it. generate: write "
                                    "FB_MachineConfig, the sequence set's tool count, the LinuxCNC tool table, then "
-                                   "the register map's files and the sequence tables. use NAME: copy "
-                                   "configs/examples/NAME.toml to configs/machine.toml and generate. Exit status: "
-                                   "0 ok, 1 errors or drift (nothing written), 2 usage.")
-    p.add_argument("action", choices=["check", "generate", "use"], help="check, generate, or use NAME")
-    p.add_argument("name", nargs="?", help="example machine for `use` (configs/examples/NAME.toml)")
+                                   "the register map's files and the sequence tables (the project's default machine: "
+                                   "in the tree; another machine: in its workspace build/machines/NAME/). list: the "
+                                   "project's machines, the default marked. Exit status: 0 ok, 1 errors or drift "
+                                   "(nothing written), 2 usage.")
+    p.add_argument("action", choices=["check", "generate", "list", "use"], help="check, generate or list")
+    p.add_argument("name", nargs="?", help=argparse.SUPPRESS)
     p.add_argument("--config", type=Path, default=None,
-                   help=f"default {DEFAULT_CONFIG}; `check` of another file (e.g. an example) checks that file alone")
+                   help="`check` of another description file checks that file alone")
     p.add_argument("--out", type=Path, default=None, help=f"the generated FB (default {DEFAULT_OUT})")
+    add_view_options(p)
     p.set_defaults(func=_main)
 
 
 def _main(a) -> int:
     root = project_root()
     if a.action == "use":
-        if not a.name:
-            print("plc machine use: error: name the example (configs/examples/NAME.toml)", file=sys.stderr)
-            return 2
-        return use(a.name, root)
-    config = a.config or root / DEFAULT_CONFIG
+        print("plc machine use: error: machines now live side by side and nothing is switched: give any command "
+              f"--machine {a.name or 'NAME'} (machines/NAME/machine.toml), or name the default machine in "
+              f"{project.PROJECT_FILE} ([project] machine = \"NAME\")", file=sys.stderr)
+        return 2
+    if a.action == "list":
+        default = project.default_name(root)
+        for name in project.names(root):
+            print(f"{name}{'  (default)' if name == default else ''}")
+        return 0
+    config = a.config or root / project.description(root)
     return check_and_generate(config, a.out, a.action == "generate", root=root)

@@ -1,4 +1,4 @@
-"""Machine configuration: configs/machine.toml -> checked -> generated ST (FB_MachineConfig).
+"""Machine configuration: machines/default/machine.toml -> checked -> generated ST (FB_MachineConfig).
 
 The carousel setup (the Logosol "Rotary toolchanger" page), the changer's timing and the simulated mechanics
 live in one TOML file that integrators edit.  `plc machine check` rejects a bad file with `file:line: error`
@@ -20,13 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from plc.diagnostics import FILE_LINE, Diagnostic, Pos
+from plc.project import where
 
-DEFAULT_CONFIG = Path("configs") / "machine.toml"
 DEFAULT_OUT = Path("st_src") / "app" / "generated" / "FB_MachineConfig.st"
 MAP_FILE = "modbus_map/map.toml"
 TOOL_TABLE = "configs/linuxcnc/atc-sim.tbl"
 SEQ_TABLES = "st_src/sequence/generated/SequenceTables.st"
-EXAMPLES = "configs/examples"
 
 INPUTS = {"home+pocket": "InputsHomePocket", "home+pocket+code": "InputsHomePocketCode",
           "home+code": "InputsHomeCode", "pocket+code": "InputsPocketCode", "code": "InputsCodeOnly"}
@@ -357,7 +356,7 @@ def check_sequence_outputs(ck: Checker, data: dict, text: str, rel: str) -> None
 
 def _rel(path: Path, root: Path) -> str:
     try:
-        return path.resolve().relative_to(root.resolve()).as_posix()
+        return where(path).relative_to(where(root)).as_posix()
     except ValueError:
         return str(path)
 

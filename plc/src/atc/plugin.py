@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from plc.extensions import Extensions, RunSetup
+from plc.extensions import Extensions, RunSetup, ViewError, ViewOption
 
-from . import freshness, generation
+from . import freshness, generation, project, workspace
 from .runsetup import runtime_setup
 
 
@@ -22,7 +22,17 @@ def register(ext: Extensions) -> None:
     ext.parsers.append(generation.add_parser)
     ext.preflight.append(freshness.refuse_if_stale)
     ext.run_setup.append(run_setup)
-    ext.project_marks.extend(["modbus_map", "configs/machine.toml"])
+    ext.project_marks.extend(["modbus_map", project.PROJECT_FILE])
+    ext.views.append(ViewOption("--machine", "NAME", "the machine (machines/NAME/; default: the one project.toml "
+                                "names); another than the default runs in its workspace build/machines/NAME/",
+                                machine_view))
+
+
+def machine_view(root: Path, name: str) -> Path:
+    try:
+        return workspace.view(root, name)
+    except project.MachineError as e:
+        raise ViewError(str(e)) from None
 
 
 def run_setup(root: Path, build_dir: Path) -> RunSetup | None:

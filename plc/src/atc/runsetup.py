@@ -1,6 +1,8 @@
 """What the tool-changer application adds to its runtime, for `plc run` (atc.plugin) and for a service release
 (atc.service): the application's events (native/events.c, linked in place of the runtime's events_none.c) with
-the register map's description, and the map's SimulatedPlant input as the simulation flag of `--io sim`."""
+the register map's description, the map's SimulatedPlant input as the simulation flag of `--io sim`, what the map
+implies for the run (host-writable ranges, retained registers) and the machine's own run configuration and state
+directory (atc.project)."""
 from __future__ import annotations
 
 import sys
@@ -8,9 +10,10 @@ from pathlib import Path
 
 from plc.extensions import RunSetup
 
-from . import machine
+from . import machine, project
 from .hmi import mapinfo
 from .host.tags import MapError
+from .map import run_ranges
 
 EVENTS_C = Path(__file__).resolve().parent / "native" / "events.c"
 SIM_FLAG_SIGNAL = "SimulatedPlant"
@@ -30,11 +33,17 @@ def runtime_setup(map_path: Path, build_dir: Path) -> RunSetup:
     out.parent.mkdir(parents=True, exist_ok=True)
     if not out.exists() or out.read_text() != text:
         out.write_text(text)
-    levels = stop_levels(map_path.parents[1] / machine.DEFAULT_CONFIG)
+    root = map_path.parents[1]
+    levels = stop_levels(root / project.description(root))
     flag = info.rmap.signal(SIM_FLAG_SIGNAL)
     sim_flag = f"%IX{flag.address // 8}.{flag.address % 8}" if flag is not None and flag.table == "discrete_input" \
         else None
-    return RunSetup(events_file=out, observer=EVENTS_C, sim_flag=sim_flag, stop_levels=levels)
+    rmap = info.rmap
+    return RunSetup(events_file=out, observer=EVENTS_C, sim_flag=sim_flag, stop_levels=levels,
+                    writable_coils=run_ranges.writable_coils(rmap),
+                    writable_registers=run_ranges.writable_registers(rmap),
+                    retain_registers=run_ranges.retained_registers(rmap),
+                    config=project.run_config(root), state_dir=project.state_dir(root))
 
 
 STOP_LINES = {"on": "invert_on", "plus_dir": "invert_plus_dir", "minus_dir": "invert_minus_dir"}

@@ -34,12 +34,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from plc import runtime
 from plc.cliargs import EXIT_FINDINGS, EXIT_OK
 from plc.driver import compile_sources, print_diagnostics
 from plc.extensions import RunSetup
-from plc.project import project_root
+from plc.project import add_view_options, project_root, where
 
+from plc import runtime
+
+from . import project
 from .runsetup import runtime_setup
 
 DEFAULT_NAME = "atc-plc"
@@ -229,7 +231,6 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: r
     (work / "lib").mkdir(parents=True)
     (work / "program.c").write_text(res.c_text)
     setup = _application_setup(sources, work)
-    cfg = dataclasses.replace(cfg, io_chosen=cfg.io_chosen or cfg.io == "sim")   # sim: refused unless --simulated
     try:
         runtime.apply_application(cfg, setup, config or "the run configuration")
     except runtime.ConfigError as exc:
@@ -403,7 +404,7 @@ logged in `/var/lib/{name}/audit.log`:
 ## Upgrade the program on the running machine
 From an atc-plc checkout on this machine (`scripts/setup` installs the toolchain: gcc, libmodbus-dev, Python):
 
-    plc deploy upgrade --prefix {prefix} [--src st_src] [--config configs/runtime.toml] [--force]
+    plc deploy upgrade --prefix {prefix} [--src st_src] [--config machines/NAME/runtime.toml] [--force]
 
 builds the new version into `releases/`, compares its retained variables and register map with the running one
 (a saved value the new version would not restore stops the upgrade and is named; `--force` goes on and the
@@ -425,13 +426,24 @@ demonstrations and tests, never for a machine; deploy a run configuration with t
 """
 
 
-def simulated_refusal(config: Path | None, cfg: runtime.RunConfig, simulated: bool, what: str) -> None:
-    """A service that runs the simulated plant only when asked: it would answer M6 as done while nothing moves."""
+def service_io(config: Path | None, cfg: runtime.RunConfig, simulated: bool, what: str) -> runtime.RunConfig:
+    """The I/O layer of a service: the run configuration's; with none named, the simulated plant when asked
+    (--simulated), else no I/O ("none": the program runs, nothing moves, no change is answered as done, said on
+    stderr). A configuration naming "sim" is refused unless asked: the service would answer M6 as done while
+    nothing moves."""
+    if not cfg.io_chosen:
+        if simulated:
+            return dataclasses.replace(cfg, io="sim", io_chosen=True)
+        print(f"plc deploy: warning: {config or 'the built-in defaults'} names no I/O layer ([io] layer): the "
+              f"service runs with none (nothing moves); give the machine's ([io] layer = \"modbus\" and its "
+              f"[[io.device]] tables), or --simulated for a demonstration {what}", file=sys.stderr)
+        return dataclasses.replace(cfg, io="none", io_chosen=True)
     if cfg.io == "sim" and not simulated:
         raise DeployError(f"{config or 'the built-in defaults'}: [io] layer = \"sim\": the service would run the "
                           f"simulated plant and answer every tool change as done while nothing moves; give a run "
                           f"configuration with the machine's I/O layer (--config FILE), or --simulated for a "
                           f"demonstration {what}: nothing written")
+    return cfg
 
 
 def write_deployment(out: Path, release: Path, cfg: runtime.RunConfig, program: str, name: str, prefix: Path,
@@ -509,9 +521,9 @@ def _config(args, sources: list[Path]) -> Path | None:
     if args.config is not None:
         return args.config
     root = project_root()
-    cfg = root / "configs" / "runtime.toml" if root else None
-    inside = root is not None and all(s.resolve().is_relative_to(root.resolve()) for s in sources)
-    if cfg is not None and cfg.exists() and inside:
+    cfg = project.run_config(root) if root else None
+    inside = root is not None and all(where(s).is_relative_to(where(root)) for s in sources)
+    if cfg is not None and inside:
         return cfg
     return None
 
@@ -519,8 +531,7 @@ def _config(args, sources: list[Path]) -> Path | None:
 def cmd_service(args) -> int:
     sources = _sources(args)
     config = _config(args, sources)
-    cfg = load_run_config(config)
-    simulated_refusal(config, cfg, args.simulated, "service")
+    cfg = service_io(config, load_run_config(config), args.simulated, "service")
     out: Path = args.out.resolve()
     prefix = (args.prefix or Path("/opt") / args.name).resolve()
     if (out / "current").exists():
@@ -552,8 +563,7 @@ def cmd_upgrade(args) -> int:
         raise DeployError(f"{prefix} has no current release (deploy with plc deploy service first)")
     sources = _sources(args)
     config = _config(args, sources)
-    cfg = load_run_config(config)
-    simulated_refusal(config, cfg, args.simulated, "upgrade")
+    cfg = service_io(config, load_run_config(config), args.simulated, "upgrade")
     new = build_release(prefix, sources, config, cfg, args.name, quiet=args.quiet)
     result = compare(layout_of(running), layout_of(new))
     for note in result.notes:
@@ -642,12 +652,13 @@ def add_parsers(sub) -> None:
             p.add_argument("--src", type=Path, action="append", metavar="DIR",
                            help="ST sources (default: st_src/ of the project; repeatable)")
             p.add_argument("--config", type=Path, metavar="FILE",
-                           help="run configuration (default: the project's configs/runtime.toml)")
+                           help="run configuration (default: the machine's, machines/NAME/runtime.toml)")
             p.add_argument("--simulated", action="store_true",
                            help="allow a run configuration with the simulated plant ([io] layer = \"sim\"): a "
                                 "demonstration service, never a machine's (refused without it)")
         p.add_argument("--name", default=DEFAULT_NAME, help=f"service name (default {DEFAULT_NAME})")
         p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
+        add_view_options(p)
     sub.choices["service"].set_defaults(func=cmd_service)
     sub.choices["upgrade"].set_defaults(func=cmd_upgrade)
     sub.choices["rollback"].set_defaults(func=cmd_rollback)

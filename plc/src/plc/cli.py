@@ -15,7 +15,7 @@ from pathlib import Path
 from . import __version__, extensions, retainfile, runtime, testrunner
 from .diagnostics import InternalError
 from .driver import UserError, compile_c, compile_sources, print_diagnostics
-from .project import project_root, refused_by_preflight
+from .project import add_view_options, choose_view, project_root, refused_by_preflight, where
 
 
 def cmd_check(args) -> int:
@@ -50,24 +50,29 @@ def cmd_build(args) -> int:
 
 
 def _inside(path: str, root: Path) -> bool:
-    return Path(path).resolve().is_relative_to(root.resolve())
+    return where(Path(path)).is_relative_to(where(root))
 
 
-def run_configuration(args, root: Path | None) -> Path | None:
-    """The run configuration `plc run` uses, said on stderr: --config, else the project's configs/runtime.toml
-    when every path belongs to the project, else none (built-in defaults)."""
+def run_configuration(args, root: Path | None, setup: extensions.RunSetup) -> Path | None:
+    """The run configuration `plc run` uses, said on stderr: --config, else the one the application names for
+    the project (its machine's), else the project's configs/runtime.toml when every path belongs to the
+    project, else none (built-in defaults)."""
     if args.config is not None:
         print(f"plc run: using {args.config}", file=sys.stderr)
         return args.config
+    if setup.config is not None:
+        print(f"plc run: using {setup.config} (the project's run configuration)", file=sys.stderr)
+        return setup.config
+    inside = root is not None and all(_inside(p, root) for p in args.paths)
     project_cfg = root / "configs" / "runtime.toml" if root is not None else None
-    if project_cfg is not None and project_cfg.exists() and all(_inside(p, root) for p in args.paths):
+    if project_cfg is not None and project_cfg.exists() and inside:
         print(f"plc run: using {project_cfg} (the project's run configuration)", file=sys.stderr)
         return project_cfg
-    why = "the sources are outside the project" if project_cfg is not None and project_cfg.exists() \
-        else "no project configs/runtime.toml found"
-    print(f"plc run: no run configuration ({why}): built-in defaults, retain file "
-          f"{args.retain or runtime.DEFAULT_RETAIN_FILE}; located RETAIN variables are kept, other retained registers only "
-          "with --config", file=sys.stderr)
+    why = "the sources are outside the project" if root is not None and not inside \
+        else "the project has none"
+    state = setup.state_dir / runtime.DEFAULT_RETAIN_FILE.name if setup.state_dir else runtime.DEFAULT_RETAIN_FILE
+    print(f"plc run: no run configuration ({why}): built-in defaults, retain file {args.retain or state}",
+          file=sys.stderr)
     return None
 
 
@@ -87,8 +92,10 @@ def cmd_run(args) -> int:
     if not res.program.configs:
         raise UserError("the sources have no CONFIGURATION: nothing to run")
     args.paths = paths
-    args.config = run_configuration(args, root)
+    if in_project and Path(args.build_dir) == runtime.DEFAULT_BUILD_DIR:
+        args.build_dir = root / runtime.DEFAULT_BUILD_DIR       # the project's own (a view has its own)
     setup = _run_setup(root, Path(args.build_dir)) if in_project else extensions.RunSetup()
+    args.config = run_configuration(args, root, setup)
     args.run_setup = setup
     c_file = Path(args.build_dir) / "program" / "program.c"
     c_file.parent.mkdir(parents=True, exist_ok=True)
@@ -158,6 +165,7 @@ def parser() -> argparse.ArgumentParser:
                        "when the sources belong to the project; the one used is printed.")
     p.add_argument("paths", nargs="*", metavar="PATH", help="ST files or directories (default: st_src/)")
     runtime.add_run_arguments(p)
+    add_view_options(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("retain", help="read a retained-data file: plc retain show FILE", description=
                        "Read a retained-data file of the runtime. Exit 0, or 1 when the file is damaged.")
@@ -190,6 +198,7 @@ TOOLCHAIN_DELEGATED = {
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
+        choose_view(argv)
         if argv and argv[0] in TOOLCHAIN_DELEGATED:
             return import_module(TOOLCHAIN_DELEGATED[argv[0]][1]).main(argv[1:])
         command = extensions.load().commands.get(argv[0]) if argv else None
@@ -201,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.print_help()
             return 2
         return args.func(args)
-    except UserError as e:
+    except (UserError, extensions.ViewError) as e:
         print(f"plc: error: {e}", file=sys.stderr)
         return 2
     except InternalError as e:

@@ -12,6 +12,8 @@ function `register(ext: Extensions)` that adds:
     run_setup     f(root, build_dir) -> RunSetup | None: what `plc run` of the project adds to the runtime (the
                   application's events and their description, the simulation flag of its program)
     project_marks files or directories that, next to st_src/, make a directory a project
+    views         options choosing a view of the project (ViewOption: e.g. `--machine NAME`): given to any
+                  subcommand, the option's function returns the directory that command treats as the project
 
 Without any extension `plc` is the bare IEC 61131-3 toolchain: check, build, test, run, retain, status,
 monitor, import, export.
@@ -48,6 +50,27 @@ class RunSetup:
     # coils whose level on the wire when the runtime stops is prescribed (bit index -> (level, why)): a remote I/O
     # device's `safe` values must give them that level (an inverted motor line is stopped by TRUE)
     stop_levels: dict[int, tuple[bool, str]] = field(default_factory=dict)
+    # what the program implies for the run configuration, used where the user's file does not say: the Modbus
+    # ranges a host may write and the holding registers retained with the RETAIN variables ("first-last" ranges)
+    writable_coils: list[str] | None = None
+    writable_registers: list[str] | None = None
+    retain_registers: list[str] = field(default_factory=list)
+    config: Path | None = None          # the user's run configuration of this project (--config overrides it)
+    state_dir: Path | None = None       # where the run keeps its state when the configuration does not say
+
+
+@dataclass(frozen=True)
+class ViewOption:
+    """An option every project-bound subcommand accepts (`flag VALUE`): resolve(root, VALUE) returns the directory
+    the command then treats as its project, or raises ViewError saying why it cannot."""
+    flag: str
+    metavar: str
+    help: str
+    resolve: Callable[[Path, str], Path]
+
+
+class ViewError(Exception):
+    """A view that cannot be used; the text says why (plc prints it and exits with status 2)."""
 
 
 @dataclass
@@ -57,6 +80,7 @@ class Extensions:
     preflight: list[Callable[[Path, str], bool]] = field(default_factory=list)
     run_setup: list[Callable[[Path, Path], RunSetup | None]] = field(default_factory=list)
     project_marks: list[str] = field(default_factory=list)
+    views: list[ViewOption] = field(default_factory=list)
     sources: list[str] = field(default_factory=list)     # the entry points that registered, for messages
 
     def command(self, name: str, help: str, target: str) -> None:

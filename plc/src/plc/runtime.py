@@ -353,7 +353,7 @@ def load_config(path: Path) -> RunConfig:
     if "file" in retain:
         name = check("retain", "file", _check_file_name)
         if name is not None:
-            cfg.retain_file = name if name.is_absolute() else path.parent / name
+            cfg.retain_file = name if name.is_absolute() else Path(os.path.normpath(path.parent / name))
     if "interval_ms" in retain:
         value = check("retain", "interval_ms", _check_int, 0, 3600000)
         cfg.retain_interval_ms = cfg.retain_interval_ms if value is None else value
@@ -378,7 +378,7 @@ def load_config(path: Path) -> RunConfig:
         if key in monitor:
             value = check("monitor", key, _check_file_name)
             if value is not None:
-                setattr(cfg, attr, value if value.is_absolute() else path.parent / value)
+                setattr(cfg, attr, value if value.is_absolute() else Path(os.path.normpath(path.parent / value)))
     if ck.problems:
         raise ConfigError(f"{len(ck.problems)} problem(s) in the run configuration {path}:\n"
                           + "\n".join(ck.in_file_order()), ck.in_file_order())
@@ -386,11 +386,20 @@ def load_config(path: Path) -> RunConfig:
 
 
 def apply_application(cfg: RunConfig, setup: RunSetup, where: object) -> None:
-    """Lay what an application adds (plc.extensions.RunSetup) under a run configuration: its simulation flag
-    unless the configuration or the command line names one; a remote I/O layer must stop the application's
-    output lines on their stop levels (ConfigError naming every coil that would not)."""
+    """Lay what an application adds (plc.extensions.RunSetup) under a run configuration: its simulation flag,
+    the ranges its program implies (host-writable coils and registers, retained registers) and its state
+    directory, each unless the configuration or the command line says; a remote I/O layer must stop the
+    application's output lines on their stop levels (ConfigError naming every coil that would not)."""
     if cfg.sim_flag is None:
         cfg.sim_flag = setup.sim_flag
+    if cfg.writable_coils is None:
+        cfg.writable_coils = setup.writable_coils
+    if cfg.writable_registers is None:
+        cfg.writable_registers = setup.writable_registers
+    if not cfg.retain_registers:
+        cfg.retain_registers = list(setup.retain_registers)
+    if cfg.retain_file is None and setup.state_dir is not None:
+        cfg.retain_file = setup.state_dir / DEFAULT_RETAIN_FILE.name
     wrong = stop_level_problems(cfg, setup.stop_levels) if cfg.io == "modbus" else []
     if wrong:
         raise ConfigError("\n".join([f"{where}: the remote I/O would not stop the machine when the runtime stops:",

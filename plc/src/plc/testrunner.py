@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .driver import INCLUDE, STDLIB, UserError, cc, compile_sources, content_hash, print_diagnostics
-from .project import project_root, refused_by_preflight
+from .project import add_view_options, project_root, refused_by_preflight
 from .resources import RUNTIME_SRC
 
 # The scan core the runtime uses: `plc test` runs every scan through it.
@@ -257,4 +257,5 @@ def add_parser(sub) -> None:
     p.add_argument("--timeout", type=int, default=DEFAULT_TIMEOUT_S, metavar="S",
                    help=f"wall-clock limit per test in seconds (default {DEFAULT_TIMEOUT_S})")
     p.add_argument("--build-dir", metavar="DIR", help="where to cache the test binary (default: build/plc-test)")
+    add_view_options(p)
     p.set_defaults(func=cmd_test)

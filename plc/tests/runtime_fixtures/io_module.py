@@ -62,7 +62,7 @@ class Wiring:
 
 @dataclass
 class Mechanics:
-    """The machine's own timing (deliberately not the values of configs/machine.toml's [simulation])."""
+    """The machine's own timing (deliberately not the values of machines/default/machine.toml's [simulation])."""
     pockets: int = 6
     pocket_time_s: float = 0.15              # one pitch
     window: float = 0.2                      # sensor active within +-window pitch of a pocket centre

@@ -30,7 +30,9 @@ from plc import cliargs, runtime
 from plc.hmi import status
 from plc.hmi.monitor import Monitor, MonitorError
 from plc.modbus import LinkError, ModbusClient, ModbusException
+from plc.project import add_view_options
 
+from .. import project
 from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
@@ -464,18 +466,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bind", default="127.0.0.1", help="address the page is served on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080, help="HTTP port (default 8080; 0 = any free port, printed)")
     p.add_argument("--plc-host", default=None, help="PLC address (default: the map's [linuxcnc] host)")
-    p.add_argument("--plc-port", type=int, default=None, help="PLC Modbus port (default: the map's, 5020)")
+    p.add_argument("--plc-port", type=int, default=None,
+                   help="PLC Modbus port (default: the machine's run configuration, else the map's 5020)")
     p.add_argument("--map", type=Path, default=None, metavar="FILE", help="register map (modbus_map/map.toml)")
-    p.add_argument("--monitor", type=Path, default=runtime.DEFAULT_MONITOR_SOCKET, metavar="SOCKET",
-                   help=f"our runtime's monitor socket, for watch/force (default {runtime.DEFAULT_MONITOR_SOCKET})")
+    p.add_argument("--monitor", type=Path, default=None, metavar="SOCKET",
+                   help="our runtime's monitor socket, for watch/force (default: the machine's, "
+                        f"{runtime.DEFAULT_MONITOR_SOCKET} for the default machine)")
     p.add_argument("--no-monitor", action="store_true", help="no watch/force panel (e.g. against OpenPLC)")
-    p.add_argument("--token-file", type=Path, default=runtime.DEFAULT_TOKEN_FILE, metavar="FILE",
-                   help=f"the token that unlocks commands and forces (default {runtime.DEFAULT_TOKEN_FILE}); "
-                        "absent: read-only")
-    p.add_argument("--alarms", type=Path, default=Path("var/alarms.jsonl"), metavar="FILE",
-                   help="alarm history file (default var/alarms.jsonl)")
+    p.add_argument("--token-file", type=Path, default=None, metavar="FILE",
+                   help="the token that unlocks commands and forces (default: the machine's, "
+                        f"{runtime.DEFAULT_TOKEN_FILE} for the default machine); absent: read-only")
+    p.add_argument("--alarms", type=Path, default=None, metavar="FILE",
+                   help="alarm history file (default: beside the machine's monitor socket, var/alarms.jsonl for "
+                        "the default machine)")
     p.add_argument("--poll-ms", type=int, default=20, metavar="MS", help="Modbus poll period (default 20)")
-    p.add_argument("--pockets", type=int, default=None, help="pockets drawn (default: configs/machine.toml)")
+    p.add_argument("--pockets", type=int, default=None, help="pockets drawn (default: machines/default/machine.toml)")
+    add_view_options(p)
     return p
 
 
@@ -497,13 +503,18 @@ def main(argv: list[str]) -> int:
     except MapError as exc:
         print(f"plc hmi: error: {exc}", file=sys.stderr)
         return 2
+    machine_port, machine_socket, machine_token = project.run_endpoint(info.rmap.root)
+    args.monitor = args.monitor or machine_socket
+    args.token_file = args.token_file or machine_token
+    args.alarms = args.alarms or machine_socket.parent / "alarms.jsonl"
     token = None
     try:
         token = args.token_file.read_text(encoding="utf-8").split()[0]
     except (OSError, IndexError):
         print(f"plc hmi: no token in {args.token_file}: the page is read-only", file=sys.stderr)
     opts = Options(plc_host=args.plc_host or info.rmap.linuxcnc.host,
-                   plc_port=args.plc_port if args.plc_port is not None else info.rmap.linuxcnc.port,
+                   plc_port=args.plc_port if args.plc_port is not None else machine_port if machine_port is not None
+                   else info.rmap.linuxcnc.port,
                    map_path=info.rmap.path, monitor_socket=None if args.no_monitor else args.monitor,
                    token_file=args.token_file, alarms=args.alarms, poll_ms=args.poll_ms, pockets=args.pockets)
     hub = Hub(opts, info, token, _pockets(info, args.pockets))

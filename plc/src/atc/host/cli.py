@@ -25,6 +25,9 @@ from pathlib import Path
 
 from plc import cliargs
 from plc.modbus import LinkError, ModbusClient, ModbusException
+from plc.project import add_view_options, where
+
+from .. import project
 
 from ..map.cli import default_map
 from .mailbox import Mailbox, mailbox_in_map, message_texts
@@ -58,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "2 usage, map or connection problem")
     p.add_argument("commands", nargs="*", metavar="COMMAND", help="e.g. \"T5 M6\", T0, M6, abort 8, clear")
     p.add_argument("--host", default=None, help="PLC address (default: [linuxcnc] host of the map, 127.0.0.1)")
-    p.add_argument("--port", type=int, default=None, help="Modbus/TCP port (default: the map's, 5020)")
+    p.add_argument("--port", type=int, default=None,
+                   help="Modbus/TCP port (default: the machine's run configuration, else the map's 5020)")
     p.add_argument("--map", type=Path, default=None, metavar="FILE", help="register map (modbus_map/map.toml)")
     p.add_argument("--tool-table", type=Path, metavar="FILE", help="LinuxCNC tool table giving each tool's pocket")
     p.add_argument("--timeout", type=float, default=60.0, metavar="S",
@@ -75,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sequence set whose MESSAGE/DIALOG texts are shown (default: configs/sequences/"
                         "sequences.toml beside the map's folder, when it exists)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only the result and errors")
+    add_view_options(p)
     return p
 
 
@@ -216,8 +221,8 @@ def main(argv: list[str]) -> int:
             return EXIT_USAGE
     texts: dict[int, str] = {}
     if not args.no_mailbox:
-        index = args.sequences or (args.map or default_map()).resolve().parent.parent / "configs" / "sequences" \
-            / "sequences.toml"
+        root = where(args.map or default_map()).parent.parent
+        index = args.sequences or root / project.sequence_index(root)
         if args.sequences or index.exists():
             try:
                 texts = message_texts(index)
@@ -225,7 +230,8 @@ def main(argv: list[str]) -> int:
                 print(f"plc host: error: {index}: {exc}", file=sys.stderr)
                 return EXIT_USAGE
     host = args.host or rmap.linuxcnc.host
-    port = args.port if args.port is not None else rmap.linuxcnc.port
+    machine_port, _, _ = project.run_endpoint(rmap.root)
+    port = args.port if args.port is not None else machine_port if machine_port is not None else rmap.linuxcnc.port
     client = ModbusClient(host, port, unit=rmap.linuxcnc.slave_id)
     try:
         client.connect()

@@ -15,6 +15,7 @@ from pathlib import Path
 from plc import cliargs
 from plc.cliargs import EXIT_FINDINGS, EXIT_OK, EXIT_USAGE
 from plc.diagnostics import Diagnostics
+from plc.project import add_view_options, project_root
 
 from .generate import drift, load_and_check, outputs, write
 
@@ -30,7 +31,11 @@ def source_checkout() -> Path | None:
 
 
 def default_map() -> Path:
-    """modbus_map/map.toml of the current directory, else of the repository this package lives in."""
+    """modbus_map/map.toml of the project (the one `--machine` chose, else the one around here), else of the
+    current directory, else of the repository this package lives in."""
+    root = project_root()
+    if root is not None and (root / DEFAULT_MAP).is_file():
+        return root / DEFAULT_MAP
     if DEFAULT_MAP.is_file():
         return DEFAULT_MAP
     repo = source_checkout()
@@ -56,6 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="the map (default: modbus_map/map.toml)")
         p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
         p.add_argument("-v", "--verbose", action="store_true", help="list the files checked or written")
+        add_view_options(p)
     return parser
 
 

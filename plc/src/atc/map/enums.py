@@ -11,9 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plc import ast as A
 from plc.diagnostics import Diagnostics, Pos
 from plc.parser import parse
+from plc.project import where
+
+from plc import ast as A
 
 
 @dataclass
@@ -48,7 +50,7 @@ def st_facts(src_dir: Path, root: Path) -> StFacts:
         except (OSError, UnicodeDecodeError):
             continue
         try:
-            name = path.resolve().relative_to(Path(root).resolve()).as_posix()
+            name = where(path).relative_to(where(Path(root))).as_posix()
         except ValueError:
             name = str(path)
         tree = parse(text, name, Diagnostics())

@@ -4,7 +4,7 @@ from __future__ import annotations
 from .check import rotary_reason_code
 from .enums import EnumType
 from .gen_linuxcnc import plan
-from .gen_runtime import retained_registers, writable_coils, writable_registers
+from .run_ranges import retained_registers, writable_coils, writable_registers
 from .gen_tags import states_of
 from .model import RegisterMap, Signal, display, iec_address, reason_order
 
@@ -60,7 +60,8 @@ def register_map_md(rmap: RegisterMap, enums: dict[str, EnumType]) -> str:
         f"Every signal the soft-PLC exchanges over Modbus/TCP (default port {lc.port}), on OpenPLC's address map,",
         "so the same map serves our runtime and an OpenPLC runtime running the same program. The source is",
         f"`{src}`; `plc map check` validates it, `plc map generate` writes this page, the located declarations of",
-        f"the PROGRAM (`{rmap.program_file}`), `hmi_tags/`, `configs/linuxcnc/` and `configs/runtime.toml`.",
+        f"the PROGRAM (`{rmap.program_file}`), `hmi_tags/` and `configs/linuxcnc/`; `plc run` and a service take the",
+        "ranges below from the map itself, wherever the machine's run configuration does not set them.",
         "",
         "| PLC address | Modbus table | addresses | here |",
         "|---|---|---|---|",

@@ -13,7 +13,7 @@ from pathlib import Path
 from plc.diagnostics import Diagnostics, Pos
 from plc.driver import compile_sources
 
-from . import gen_doc, gen_linuxcnc, gen_runtime, gen_st, gen_tags
+from . import gen_doc, gen_linuxcnc, gen_st, gen_tags
 from .check import check
 from .enums import EnumType, st_facts
 from .model import RegisterMap, load
@@ -24,7 +24,6 @@ MB2HAL_INI = "configs/linuxcnc/atc_mb2hal.ini"
 IOV2_HAL = "configs/linuxcnc/atc_iov2.hal"
 IO_HAL = "configs/linuxcnc/atc_io.hal"
 MAP_DOC = "docs/register-map.md"
-RUNTIME_TOML = "configs/runtime.toml"
 
 
 @dataclass
@@ -97,7 +96,6 @@ def outputs(loaded: Loaded) -> dict[str, str]:
         IOV2_HAL: gen_linuxcnc.hal_file(rmap, "iov2"),
         IO_HAL: gen_linuxcnc.hal_file(rmap, "io"),
         MAP_DOC: gen_doc.register_map_md(rmap, enums),
-        RUNTIME_TOML: gen_runtime.runtime_toml(rmap),
     }
     program = rmap.root / rmap.program_file
     current = program.read_text(encoding="utf-8") if program.is_file() else ""

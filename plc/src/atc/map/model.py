@@ -15,8 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from plc.diagnostics import Diagnostics, Pos
+from plc.project import where
 
-from .. import machine
+from .. import machine, project
 
 TABLES = ("coil", "discrete_input", "input_register", "holding_register")
 DIRECTIONS = ("input", "output", "plc_to_host", "host_to_plc")
@@ -141,7 +142,8 @@ class RegisterMap:
     lines: KeyLines
     program: str = "AtcMain"
     program_file: str = "st_src/app/AtcMain.st"
-    machine: str = ""           # the machine description the carousel lines come from (relative to map.toml)
+    machine: str = ""           # the machine description the carousel lines come from (relative to map.toml;
+                                # default: the project's machine, project.toml)
     application: str = ""       # FB type holding the logic: its same-named pins are wired by the generator
     instance: str = ""          # its instance in the PROGRAM
     configuration: str = "Config0"
@@ -234,7 +236,7 @@ def _line_of(message: str) -> int:
 def display(path: Path, root: Path) -> str:
     """A path relative to the repository when it lies inside it (stable in messages and generated files)."""
     try:
-        return path.resolve().relative_to(root.resolve()).as_posix()
+        return where(path).relative_to(where(root)).as_posix()
     except ValueError:
         return str(path)
 
@@ -242,7 +244,7 @@ def display(path: Path, root: Path) -> str:
 def load(path: Path, diags: Diagnostics, root: Path | None = None) -> RegisterMap | None:
     """Read map.toml and the reason code file it names; None when a file cannot be read at all."""
     path = Path(path)
-    root = Path(root) if root is not None else path.resolve().parent.parent
+    root = Path(root) if root is not None else where(path).parent.parent
     data, text = _read_toml(path, diags)
     if data is None:
         return None
@@ -264,8 +266,9 @@ def load(path: Path, diags: Diagnostics, root: Path | None = None) -> RegisterMa
         sig = _load_signal(i, table, lines, diags)
         if sig is not None:
             rmap.signals.append(sig)
-    if rmap.machine:
-        _load_machine_lines(rmap, path.parent / rmap.machine, diags)
+    described = path.parent / rmap.machine if rmap.machine else rmap.root / project.description(rmap.root)
+    if rmap.machine or described.is_file():
+        _load_machine_lines(rmap, described, diags)
     reasons_file = data.get("map", {}).get("reason_codes", "reason_codes.toml")
     _load_reasons(rmap, path.parent / reasons_file, diags)
     return rmap

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from plc.project import where
+
 from .assemble import Assembly
 from .diagnostics import format_ranges
 from .encoding import AXES, STEP_FIELDS, Kind, Opcode, Step
@@ -21,7 +23,7 @@ INDENT = "    "
 
 def stable_name(path: Path) -> str:
     """`configs/sequences/sequences.toml` inside a repository, else the bare file name."""
-    resolved = path.resolve()
+    resolved = where(path)
     for parent in resolved.parents:
         if (parent / ".git").exists():
             return resolved.relative_to(parent).as_posix()
