@@ -210,7 +210,7 @@ def test_a_dialog_cancelled_aborts_the_change_with_a_fault(dialog_plc):
     assert s["ToolInSpindle"] != 5 and s["FaultReason"] < 0 and not s["CarouselMotorOn"]
 
 
-# ---- the example rack machine (configs/examples/rack8): fixed pockets, positions from Q coordinates ------------
+# ---- the example rack machine (machines/rack8): fixed pockets, positions from Q coordinates ------------
 
 RACK = REPO / "machines" / "rack8" / "sequences"          # its sequences; the machine is rack8.toml beside it
 

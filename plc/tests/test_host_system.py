@@ -38,7 +38,7 @@ class Plc:
 
     def start(self, timeout: float = 180.0) -> None:
         cmd = [sys.executable, "-m", "plc.cli", "run", str(self.src), "--config",
-               str(REPO / "machines" / "default" / "runtime.toml"), "--port", str(self.port), "--retain",
+               str(REPO / "machines" / "default" / "runtime.toml"), "--io", "sim", "--port", str(self.port), "--retain",
                str(self.tmp / "plc.retain"), "--build-dir", str(REPO / "build" / "runtime")]
         if self.src != REPO / "st_src":
             # a copy outside the project gets no application setup from it: the copy's simulated plant by name

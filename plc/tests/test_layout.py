@@ -37,7 +37,7 @@ def test_nothing_machine_local_is_tracked():
     tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert tracked.returncode == 0, tracked.stderr
     assert [f for f in tracked.stdout.splitlines() if "var" in Path(f).parts[:-1]] == []
-    for path in ("var/plc.retain", "configs/examples/var/plc.retain", "plc/src/var/monitor.token"):
+    for path in ("var/plc.retain", "machines/rack8/var/plc.retain", "plc/src/var/monitor.token"):
         probe = subprocess.run(["git", "check-ignore", "-q", path], cwd=REPO, capture_output=True, text=True,
                                timeout=60)
         assert probe.returncode == 0, f"{path}: var/ must be ignored wherever it appears {probe.stderr}"

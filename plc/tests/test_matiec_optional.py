@@ -20,6 +20,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -248,6 +249,26 @@ def test_iec_tests_are_accepted_by_openplc_matiec(tmp_path):
     prelude = None if _repository_defines_test_context(files) else _stub_test_prelude()
     source = _combine(files, prelude)
     result, workdir = _run_iec2c(source, tmp_path)
+    _assert_accepted(result, source)
+    if os.environ.get("IEC2C_CINCLUDE"):
+        _compile_generated_c(workdir)
+
+
+MACHINES = sorted(p.parent.name for p in (REPO / "machines").glob("*/machine.toml"))
+
+
+@pytest.mark.parametrize("machine", MACHINES)
+def test_every_machines_openplc_bundle_is_accepted_by_openplc_matiec(machine, tmp_path):
+    """Issue 26: `plc deploy openplc --machine NAME` of every machine of the project, as an OpenPLC user uploads
+    it, is accepted by the real MATIEC (and its C compiles like OpenPLC's when IEC2C_CINCLUDE is given)."""
+    _reference_compiler()
+    bundle = tmp_path / f"{machine}.st"
+    deployed = subprocess.run([sys.executable, "-m", "plc.cli", "deploy", "openplc", "--machine", machine, "--out",
+                               str(bundle)], cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert deployed.returncode == 0, deployed.stderr
+    source = CombinedSource()
+    source.add(bundle.name, bundle.read_text(encoding="utf-8"))
+    result, workdir = _run_iec2c(source, tmp_path / "iec2c")
     _assert_accepted(result, source)
     if os.environ.get("IEC2C_CINCLUDE"):
         _compile_generated_c(workdir)

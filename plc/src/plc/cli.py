@@ -161,7 +161,7 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="build and run the soft-PLC (Modbus/TCP, OpenPLC map)", description=
                        "Compile the ST program (default: the project's st_src/) and run it as a soft-PLC serving "
                        "Modbus/TCP with OpenPLC's address map. Ctrl-C stops it: outputs go safe, RETAIN data "
-                       "is saved. The run configuration is --config, else the project's configs/runtime.toml "
+                       "is saved. The run configuration is --config, else the project's (its machine's, or configs/runtime.toml) "
                        "when the sources belong to the project; the one used is printed.")
     p.add_argument("paths", nargs="*", metavar="PATH", help="ST files or directories (default: st_src/)")
     runtime.add_run_arguments(p)
