@@ -109,6 +109,8 @@ def test_two_machines_run_at_once_and_only_the_added_machine_shows_in_git_status
         assert changed.stdout.splitlines()[-1] == "tool 4 in spindle", changed.stdout
         assert other.returncode == 0, other.stdout + other.stderr
         assert other.stdout.splitlines()[-1] == "tool 3 in spindle", other.stdout
+        status = plc("status", "--machine", NEW, cwd=root)                 # follows the machine's port too
+        assert status.returncode == 0 and "RUNNING" in status.stdout, status.stdout + status.stderr
         assert new.proc.poll() is None and default.proc.poll() is None
     finally:
         new.stop()
@@ -130,6 +132,18 @@ def test_two_machines_run_at_once_and_only_the_added_machine_shows_in_git_status
         assert "CONFIGURATION Config0" in text
         assert ("Rotary.pockets := 6;" in text) and (("CarouselCode1 AT" in text) == (machine == NEW))
 
-    # 4. nothing of the project was rewritten: only the added machine is new
+    # 4. a service of the new machine: its own name and port, nothing inside the checkout named
+    out = tmp_path / "svc"
+    service = plc("deploy", "service", "--machine", NEW, "--out", str(out), "--prefix", str(out), cwd=root,
+                  timeout=600)
+    assert service.returncode == 0, service.stderr
+    unit = out / f"atc-plc-{NEW}.service"
+    assert f"127.0.0.1:{new_port}" in unit.read_text() and "SIMULATED" not in unit.read_text()
+    run = (out / "current" / "run").read_text()
+    assert "--io none" in run and "--sim-flag" not in run, run
+    for f in (out / "current" / "run", unit, out / "install.sh", out / "uninstall.sh", out / "README.md"):
+        assert str(root) not in f.read_text(), f"{f} names the checkout {root}"
+
+    # 5. nothing of the project was rewritten: only the added machine is new
     status = git(root, "status", "--porcelain", "--untracked-files=all").splitlines()
     assert sorted(status) == [f"?? machines/{NEW}/machine.toml", f"?? machines/{NEW}/runtime.toml"], status

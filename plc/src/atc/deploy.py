@@ -239,6 +239,7 @@ def main(argv: list[str]) -> int:
         return code
     if args.target != "openplc":
         try:
+            args.name = service.service_name(args)
             return args.func(args)
         except service.DeployError as exc:
             print(f"plc deploy: error: {exc}", file=sys.stderr)

@@ -23,9 +23,17 @@ def register(ext: Extensions) -> None:
     ext.preflight.append(freshness.refuse_if_stale)
     ext.run_setup.append(run_setup)
     ext.project_marks.extend(["modbus_map", project.PROJECT_FILE])
+    ext.run_config.append(run_config)
     ext.views.append(ViewOption("--machine", "NAME", "the machine (machines/NAME/; default: the one project.toml "
                                 "names); another than the default runs in its workspace build/machines/NAME/",
                                 machine_view))
+
+
+def run_config(root: Path) -> tuple[Path | None, Path | None] | None:
+    """The machine's own run configuration and state directory (atc.project), for a project with machines."""
+    if not (project.source_root(root) / project.MACHINES).is_dir():
+        return None
+    return project.run_config(root), project.state_dir(root)
 
 
 def machine_view(root: Path, name: str) -> Path:

@@ -18,7 +18,6 @@ import re
 import tomllib
 from pathlib import Path
 
-from plc import runtime
 
 PROJECT_FILE = "project.toml"
 MACHINES = "machines"
@@ -95,19 +94,3 @@ def sequence_index(root: Path) -> str:
         return SEQUENCES
     index = data.get("sequences", {}).get("index") if isinstance(data.get("sequences"), dict) else None
     return index if isinstance(index, str) else SEQUENCES
-
-
-def run_endpoint(root: Path) -> tuple[int | None, Path, Path]:
-    """The Modbus port (None: the runtime's default), the monitor socket and token of the project's machine when
-    it runs with its own run configuration: what `plc host` and `plc hmi` connect to by default."""
-    cfg = runtime.RunConfig()
-    path = run_config(root)
-    if path is not None:
-        try:
-            cfg = runtime.load_config(path)
-        except runtime.ConfigError:
-            pass                    # `plc run` reports it; the defaults stand meanwhile
-    if cfg.retain_file is None:
-        cfg.retain_file = state_dir(root) / runtime.DEFAULT_RETAIN_FILE.name
-    sock, token, _ = runtime.monitor_files(cfg)
-    return (cfg.port if path is not None else None), sock, token

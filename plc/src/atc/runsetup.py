@@ -1,8 +1,7 @@
 """What the tool-changer application adds to its runtime, for `plc run` (atc.plugin) and for a service release
 (atc.service): the application's events (native/events.c, linked in place of the runtime's events_none.c) with
 the register map's description, the map's SimulatedPlant input as the simulation flag of `--io sim`, what the map
-implies for the run (host-writable ranges, retained registers) and the machine's own run configuration and state
-directory (atc.project)."""
+implies for the run (host-writable ranges, retained registers)."""
 from __future__ import annotations
 
 import sys
@@ -42,8 +41,7 @@ def runtime_setup(map_path: Path, build_dir: Path) -> RunSetup:
     return RunSetup(events_file=out, observer=EVENTS_C, sim_flag=sim_flag, stop_levels=levels,
                     writable_coils=run_ranges.writable_coils(rmap),
                     writable_registers=run_ranges.writable_registers(rmap),
-                    retain_registers=run_ranges.retained_registers(rmap),
-                    config=project.run_config(root), state_dir=project.state_dir(root))
+                    retain_registers=run_ranges.retained_registers(rmap))
 
 
 STOP_LINES = {"on": "invert_on", "plus_dir": "invert_plus_dir", "minus_dir": "invert_minus_dir"}

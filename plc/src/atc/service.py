@@ -528,6 +528,17 @@ def _config(args, sources: list[Path]) -> Path | None:
     return None
 
 
+def service_name(args) -> str:
+    """--name, else atc-plc for the project's default machine and atc-plc-NAME for another one (two machines of a
+    project deploy as two services without clashing)."""
+    if args.name:
+        return args.name
+    root = project_root()
+    if root is None or project.source_root(root) == root:
+        return DEFAULT_NAME
+    return f"{DEFAULT_NAME}-{project.default_name(root)}"
+
+
 def cmd_service(args) -> int:
     sources = _sources(args)
     config = _config(args, sources)
@@ -656,7 +667,8 @@ def add_parsers(sub) -> None:
             p.add_argument("--simulated", action="store_true",
                            help="allow a run configuration with the simulated plant ([io] layer = \"sim\"): a "
                                 "demonstration service, never a machine's (refused without it)")
-        p.add_argument("--name", default=DEFAULT_NAME, help=f"service name (default {DEFAULT_NAME})")
+        p.add_argument("--name", default=None, help=f"service name (default {DEFAULT_NAME}; {DEFAULT_NAME}-NAME for "
+                       "another machine than the project's default, --machine NAME)")
         p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
         add_view_options(p)
     sub.choices["service"].set_defaults(func=cmd_service)

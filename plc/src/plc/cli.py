@@ -16,6 +16,7 @@ from . import __version__, extensions, retainfile, runtime, testrunner
 from .diagnostics import InternalError
 from .driver import UserError, compile_c, compile_sources, print_diagnostics
 from .project import add_view_options, choose_view, project_root, refused_by_preflight, where
+from .project import run_config as project_run_config
 
 
 def cmd_check(args) -> int:
@@ -53,24 +54,20 @@ def _inside(path: str, root: Path) -> bool:
     return where(Path(path)).is_relative_to(where(root))
 
 
-def run_configuration(args, root: Path | None, setup: extensions.RunSetup) -> Path | None:
-    """The run configuration `plc run` uses, said on stderr: --config, else the one the application names for
-    the project (its machine's), else the project's configs/runtime.toml when every path belongs to the
-    project, else none (built-in defaults)."""
+def run_configuration(args, root: Path | None) -> Path | None:
+    """The run configuration `plc run` uses, said on stderr: --config, else the project's when every path belongs
+    to the project (the one an extension names, e.g. the machine's, else configs/runtime.toml), else none
+    (built-in defaults). Sets args.state_dir, where the project's run keeps its state by default."""
+    inside = root is not None and all(_inside(p, root) for p in args.paths)
+    project_cfg, args.state_dir = project_run_config(root) if inside else (None, None)
     if args.config is not None:
         print(f"plc run: using {args.config}", file=sys.stderr)
         return args.config
-    if setup.config is not None:
-        print(f"plc run: using {setup.config} (the project's run configuration)", file=sys.stderr)
-        return setup.config
-    inside = root is not None and all(_inside(p, root) for p in args.paths)
-    project_cfg = root / "configs" / "runtime.toml" if root is not None else None
-    if project_cfg is not None and project_cfg.exists() and inside:
+    if project_cfg is not None:
         print(f"plc run: using {project_cfg} (the project's run configuration)", file=sys.stderr)
         return project_cfg
-    why = "the sources are outside the project" if root is not None and not inside \
-        else "the project has none"
-    state = setup.state_dir / runtime.DEFAULT_RETAIN_FILE.name if setup.state_dir else runtime.DEFAULT_RETAIN_FILE
+    why = "the sources are outside the project" if root is not None and not inside else "the project has none"
+    state = args.state_dir / runtime.DEFAULT_RETAIN_FILE.name if args.state_dir else runtime.DEFAULT_RETAIN_FILE
     print(f"plc run: no run configuration ({why}): built-in defaults, retain file {args.retain or state}",
           file=sys.stderr)
     return None
@@ -95,7 +92,7 @@ def cmd_run(args) -> int:
     if in_project and Path(args.build_dir) == runtime.DEFAULT_BUILD_DIR:
         args.build_dir = root / runtime.DEFAULT_BUILD_DIR       # the project's own (a view has its own)
     setup = _run_setup(root, Path(args.build_dir)) if in_project else extensions.RunSetup()
-    args.config = run_configuration(args, root, setup)
+    args.config = run_configuration(args, root)
     args.run_setup = setup
     c_file = Path(args.build_dir) / "program" / "program.c"
     c_file.parent.mkdir(parents=True, exist_ok=True)

@@ -12,6 +12,8 @@ function `register(ext: Extensions)` that adds:
     run_setup     f(root, build_dir) -> RunSetup | None: what `plc run` of the project adds to the runtime (the
                   application's events and their description, the simulation flag of its program)
     project_marks files or directories that, next to st_src/, make a directory a project
+    run_config    f(root) -> (run configuration, state directory) | None: where the project's run is configured
+                  and keeps its state when the configuration does not say (`plc run`, `plc status`, `plc monitor`)
     views         options choosing a view of the project (ViewOption: e.g. `--machine NAME`): given to any
                   subcommand, the option's function returns the directory that command treats as the project
 
@@ -55,8 +57,6 @@ class RunSetup:
     writable_coils: list[str] | None = None
     writable_registers: list[str] | None = None
     retain_registers: list[str] = field(default_factory=list)
-    config: Path | None = None          # the user's run configuration of this project (--config overrides it)
-    state_dir: Path | None = None       # where the run keeps its state when the configuration does not say
 
 
 @dataclass(frozen=True)
@@ -80,6 +80,7 @@ class Extensions:
     preflight: list[Callable[[Path, str], bool]] = field(default_factory=list)
     run_setup: list[Callable[[Path, Path], RunSetup | None]] = field(default_factory=list)
     project_marks: list[str] = field(default_factory=list)
+    run_config: list[Callable[[Path], tuple[Path | None, Path | None] | None]] = field(default_factory=list)
     views: list[ViewOption] = field(default_factory=list)
     sources: list[str] = field(default_factory=list)     # the entry points that registered, for messages
 

@@ -67,3 +67,16 @@ def add_view_options(parser) -> None:
     """Declare the extensions' view options on a subcommand's parser (the choice itself is made by choose_view)."""
     for v in extensions.load().views:
         parser.add_argument(v.flag, metavar=v.metavar, help=v.help)
+
+
+def run_config(root: Path | None) -> tuple[Path | None, Path | None]:
+    """The project's run configuration and state directory, as the first extension that knows the project says;
+    else its configs/runtime.toml (when there is one) and no state directory."""
+    if root is None:
+        return None, None
+    for hook in extensions.load().run_config:
+        found = hook(root)
+        if found is not None:
+            return found
+    own = root / "configs" / "runtime.toml"
+    return (own if own.is_file() else None), None

@@ -60,7 +60,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Sequence
 
-from . import io_config
+from . import io_config, project
 from .extensions import RunSetup
 from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
 
@@ -387,9 +387,9 @@ def load_config(path: Path) -> RunConfig:
 
 def apply_application(cfg: RunConfig, setup: RunSetup, where: object) -> None:
     """Lay what an application adds (plc.extensions.RunSetup) under a run configuration: its simulation flag,
-    the ranges its program implies (host-writable coils and registers, retained registers) and its state
-    directory, each unless the configuration or the command line says; a remote I/O layer must stop the
-    application's output lines on their stop levels (ConfigError naming every coil that would not)."""
+    the ranges its program implies (host-writable coils and registers, retained registers), each unless the
+    configuration or the command line says; a remote I/O layer must stop the application's output lines on their
+    stop levels (ConfigError naming every coil that would not)."""
     if cfg.sim_flag is None:
         cfg.sim_flag = setup.sim_flag
     if cfg.writable_coils is None:
@@ -398,8 +398,6 @@ def apply_application(cfg: RunConfig, setup: RunSetup, where: object) -> None:
         cfg.writable_registers = setup.writable_registers
     if not cfg.retain_registers:
         cfg.retain_registers = list(setup.retain_registers)
-    if cfg.retain_file is None and setup.state_dir is not None:
-        cfg.retain_file = setup.state_dir / DEFAULT_RETAIN_FILE.name
     wrong = stop_level_problems(cfg, setup.stop_levels) if cfg.io == "modbus" else []
     if wrong:
         raise ConfigError("\n".join([f"{where}: the remote I/O would not stop the machine when the runtime stops:",
@@ -484,6 +482,23 @@ def monitor_files(cfg: RunConfig) -> tuple[Path, Path, Path]:
             cfg.audit_file or here / DEFAULT_AUDIT_FILE.name)
 
 
+def project_endpoint(root: Path | None) -> tuple[int | None, Path, Path]:
+    """Where the project's run is reached: its Modbus port (None when the project has no run configuration), its
+    monitor socket and token (beside its retained file), what `plc status`, `plc monitor` and the application's
+    clients use by default."""
+    config, state = project.run_config(root)
+    cfg = RunConfig()
+    if config is not None:
+        try:
+            cfg = load_config(config)
+        except ConfigError:
+            pass                    # `plc run` reports it; the defaults stand meanwhile
+    if cfg.retain_file is None and state is not None:
+        cfg.retain_file = state / DEFAULT_RETAIN_FILE.name
+    sock, token, _ = monitor_files(cfg)
+    return (cfg.port if config is not None else None), sock, token
+
+
 def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
     """The command line of the C runtime for a configuration."""
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
@@ -563,6 +578,9 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
         cfg.read_only = True
     if args.retain is not None:
         cfg.retain_file = args.retain
+    state = getattr(args, "state_dir", None)         # the project's, where its configuration names no retain file
+    if cfg.retain_file is None and state is not None:
+        cfg.retain_file = Path(state) / DEFAULT_RETAIN_FILE.name
     if getattr(args, "no_monitor", False):
         cfg.monitor = False
     if getattr(args, "sim_flag", None) is not None:

@@ -32,7 +32,6 @@ from plc.hmi.monitor import Monitor, MonitorError
 from plc.modbus import LinkError, ModbusClient, ModbusException
 from plc.project import add_view_options
 
-from .. import project
 from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
@@ -503,7 +502,7 @@ def main(argv: list[str]) -> int:
     except MapError as exc:
         print(f"plc hmi: error: {exc}", file=sys.stderr)
         return 2
-    machine_port, machine_socket, machine_token = project.run_endpoint(info.rmap.root)
+    machine_port, machine_socket, machine_token = runtime.project_endpoint(info.rmap.root)
     args.monitor = args.monitor or machine_socket
     args.token_file = args.token_file or machine_token
     args.alarms = args.alarms or machine_socket.parent / "alarms.jsonl"

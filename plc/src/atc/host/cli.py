@@ -23,7 +23,7 @@ import re
 import sys
 from pathlib import Path
 
-from plc import cliargs
+from plc import cliargs, runtime
 from plc.modbus import LinkError, ModbusClient, ModbusException
 from plc.project import add_view_options, where
 
@@ -230,7 +230,7 @@ def main(argv: list[str]) -> int:
                 print(f"plc host: error: {index}: {exc}", file=sys.stderr)
                 return EXIT_USAGE
     host = args.host or rmap.linuxcnc.host
-    machine_port, _, _ = project.run_endpoint(rmap.root)
+    machine_port, _, _ = runtime.project_endpoint(rmap.root)
     port = args.port if args.port is not None else machine_port if machine_port is not None else rmap.linuxcnc.port
     client = ModbusClient(host, port, unit=rmap.linuxcnc.slave_id)
     try:

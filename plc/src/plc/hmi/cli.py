@@ -23,16 +23,20 @@ from pathlib import Path
 
 from .. import cliargs, runtime
 from .monitor import Monitor, MonitorError, read_token
+from ..project import add_view_options, project_root
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="plc monitor", description="Watch, write and force variables of the running "
                                 "soft-PLC (its monitoring channel, never the Modbus port).",
                                 epilog="exit status: 0 done, 1 refused by the runtime, 2 usage or no connection")
-    p.add_argument("--socket", type=Path, default=runtime.DEFAULT_MONITOR_SOCKET,
-                   help=f"the runtime's monitor socket (default {runtime.DEFAULT_MONITOR_SOCKET})")
-    p.add_argument("--token-file", type=Path, default=runtime.DEFAULT_TOKEN_FILE,
-                   help=f"the token for writes (default {runtime.DEFAULT_TOKEN_FILE})")
+    p.add_argument("--socket", type=Path, default=None,
+                   help="the runtime's monitor socket (default: the project's run's, beside its retained file; "
+                        f"{runtime.DEFAULT_MONITOR_SOCKET} without a project)")
+    p.add_argument("--token-file", type=Path, default=None,
+                   help=f"the token for writes (default: beside the socket; {runtime.DEFAULT_TOKEN_FILE} without a "
+                        "project)")
+    add_view_options(p)
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND", required=True)
     q = sub.add_parser("vars", help="list the variables")
     q.add_argument("prefix", nargs="?", default="", help="only paths containing this")
@@ -105,6 +109,9 @@ def main(argv: list[str]) -> int:
     args, code = cliargs.parse(parser, argv)
     if args is None:
         return code
+    _, sock, token = runtime.project_endpoint(project_root())
+    args.socket = args.socket or sock
+    args.token_file = args.token_file or token
     m = Monitor(args.socket)
     try:
         m.connect()

@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .. import cliargs
+from .. import cliargs, runtime
+from ..project import add_view_options, project_root
 from plc.modbus import LinkError, ModbusClient, ModbusException
 
 DIAG_BASE, DIAG_COUNT = 1024, 64
@@ -71,11 +72,15 @@ def main(argv: list[str]) -> int:
                                 epilog="exit status: 0 running, 1 faulted or stopping, 2 no connection or no "
                                        "diagnostic block")
     p.add_argument("--host", default="127.0.0.1", help="PLC address (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=5020, help="Modbus/TCP port (default 5020)")
+    p.add_argument("--port", type=int, default=None,
+                   help="Modbus/TCP port (default: the project's run configuration's, else 5020)")
     p.add_argument("--json", action="store_true", help="print the raw fields as JSON")
+    add_view_options(p)
     args, code = cliargs.parse(p, argv)
     if args is None:
         return code
+    if args.port is None:
+        args.port = runtime.project_endpoint(project_root())[0] or runtime.DEFAULT_PORT
     client = ModbusClient(args.host, args.port)
     try:
         client.connect()
