@@ -138,8 +138,11 @@ def add_compile_opts(p: argparse.ArgumentParser) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
+    views = extensions.load().views
     ap = argparse.ArgumentParser(prog="plc", description="atc-plc toolchain: check, build, test and run "
-                                 "IEC 61131-3 Structured Text for the soft-PLC and OpenPLC.")
+                                 "IEC 61131-3 Structured Text for the soft-PLC and OpenPLC.",
+                                 epilog=" ".join(f"{v.flag} {v.metavar}, given to a command of the project: {v.help}."
+                                                 for v in views) or None)
     ap.add_argument("--version", action="version", version=f"plc {__version__}")
     sub = ap.add_subparsers(dest="cmd", metavar="COMMAND")
     p = sub.add_parser("check", help="report errors and portability warnings", description=
