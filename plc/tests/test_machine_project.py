@@ -97,8 +97,9 @@ def test_stale_or_broken_sources_are_refused_by_run_and_test(project, what, chan
     edit(project / rel, old, new)
     refused_by_run(project, command)
     result = plc("test", "-q", "--build-dir", str(project / "build" / "t"), cwd=project, timeout=300)
-    assert result.returncode == 1, result.stdout + result.stderr
+    assert result.returncode == 2, result.stdout + result.stderr          # the project, not a test, is wrong
     assert command in result.stderr and "nothing was run" in result.stderr, result.stderr
+    assert " passed" not in result.stdout, result.stdout                   # no test count for tests not run
 
 
 def test_a_machine_beside_the_default_is_built_in_its_workspace_and_rewrites_no_project_file(project):

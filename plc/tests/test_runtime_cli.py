@@ -239,6 +239,30 @@ def test_plc_run_rejects_a_bad_config_before_anything_runs(tmp_path):
     assert not build_dir.exists()
 
 
+def test_a_taken_port_is_exit_2_and_writes_nothing(tmp_path):
+    """Issue 27: another process listens on the port: `plc run` and the runtime itself exit 2 (an environment
+    problem, README) and leave no retain file, no token, no folder behind."""
+    import socket
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        state = tmp_path / "var"
+        result = subprocess.run([sys.executable, "-m", "plc.runtime", str(h.BASIC), "--port", str(port), "--retain",
+                                 str(state / "plc.retain"), "--build-dir", str(h.CACHE)], capture_output=True,
+                                text=True, cwd=PLC_ROOT, timeout=300)
+        assert result.returncode == 2, result.stderr
+        assert f"cannot listen on 127.0.0.1:{port}: Address already in use" in result.stderr
+        assert "nothing was written" in result.stderr and not state.exists()
+        state.mkdir()                               # the runtime alone: its folder exists, the file must not appear
+        direct = h.Runtime(h.runtime_binary(), "--port", str(port), "--retain", str(state / "plc.retain"),
+                           "--no-rt", raw=True)
+        rc = direct.proc.wait(30 * h.SLOW)
+        assert rc == 2, direct.log
+        assert f"cannot listen on 127.0.0.1:{port}" in direct.log, direct.log
+        assert list(state.iterdir()) == [], direct.log
+
+
 def test_run_arguments_can_be_added_to_any_parser():
     parser = argparse.ArgumentParser()
     runtime.add_run_arguments(parser)

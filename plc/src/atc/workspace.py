@@ -18,8 +18,8 @@ from .generation import check_and_generate
 from .project import DESCRIPTION, MACHINES, PROJECT_FILE, MachineError, default_name, description, names, source_root
 
 WORKSPACES = Path("build") / "machines"
-# the project's directories a workspace shows (as links to their files); machines/ shows only its own machine
-VIEWED = ("st_src", "configs", "modbus_map", "hmi_tags", "docs", "iec_tests")
+# the project's directories a workspace shows (as links to their files; a machine may name another's sequences)
+VIEWED = ("st_src", "configs", "modbus_map", "hmi_tags", "docs", "iec_tests", "machines")
 SKIPPED = ("var", "__pycache__")
 STAMP = ".stamp"
 
@@ -60,7 +60,6 @@ def build_workspace(root: Path, name: str) -> Path:
         (fresh / "build").symlink_to(cache)
         for top in VIEWED:
             _link_tree(root / top, fresh / top)
-        _link_tree(root / MACHINES / name, fresh / MACHINES / name)
         (fresh / PROJECT_FILE).write_text(
             f"# The workspace of machine {name}, built by plc from {root}: do not edit (rebuilt by every command "
             f"given --machine {name}).\n[project]\nmachine = \"{name}\"\n\n[workspace]\nsource = "
@@ -81,7 +80,7 @@ def build_workspace(root: Path, name: str) -> Path:
 
 
 def _sources(root: Path, name: str):
-    for top in (*VIEWED, f"{MACHINES}/{name}"):
+    for top in VIEWED:
         for dirpath, dirnames, filenames in os.walk(root / top):
             dirnames[:] = sorted(d for d in dirnames if d not in SKIPPED)
             for f in sorted(filenames):

@@ -53,6 +53,7 @@ import ipaddress
 import os
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -593,6 +594,7 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
         print(f"plc run: I/O layer sim by default: outputs loop back to inputs{simulated}", file=sys.stderr)
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
     binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize, observer=setup.observer)
+    probe_listen(cfg.bind, cfg.port)                 # before anything is written: a taken port leaves nothing
     try:
         retain.parent.mkdir(parents=True, exist_ok=True)
         if cfg.monitor:
@@ -605,10 +607,28 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     return runtime_argv(binary, cfg)
 
 
+class AddressInUse(Exception):
+    """The Modbus address cannot be bound (another process listens there): an environment problem, exit 2."""
+
+
+def probe_listen(bind: str, port: int) -> None:
+    """AddressInUse when bind:port cannot be bound now (as the runtime binds it, SO_REUSEADDR)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((bind, port))
+        except OSError as exc:
+            raise AddressInUse(f"cannot listen on {bind}:{port}: {exc.strerror or exc} (another PLC runs there? "
+                               f"give another --port or stop it); nothing was written") from None
+
+
 def run_command(args: argparse.Namespace, program_c: Path) -> int:
     """`plc run`: build if needed, then become the runtime (returns only on an error)."""
     try:
         argv = prepare_run(args, program_c)
+    except AddressInUse as exc:
+        print(f"plc run: error: {exc}", file=sys.stderr)
+        return 2
     except (ConfigError, RuntimeBuildError) as exc:
         print(f"plc run: error: {exc}", file=sys.stderr)
         return 1

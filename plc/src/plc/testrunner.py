@@ -190,8 +190,7 @@ def cmd_test(args) -> int:
         raise UserError("no test paths given and no project (st_src/ and iec_tests/) found from here")
     src = args.src if args.src is not None else ([str(root / "st_src")] if root else [])
     if root is not None and args.src is None and refused_by_preflight(root, "plc test"):
-        print("0 passed, 1 failed")
-        return 1
+        return 2        # the project is not ready (stale generated files): no test ran, so no test count
     build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
     t0 = time.perf_counter()
     try:
@@ -245,7 +244,9 @@ def cmd_test(args) -> int:
 def add_parser(sub) -> None:
     p = sub.add_parser("test", help="run the scan-cycle tests written in ST", description=
                        "Compile st_src/ and the tests into one binary and run every TEST_ function block on a fresh "
-                       "instance with a simulated clock. Exit 0 only when all pass.")
+                       "instance with a simulated clock. Exit status: 0 all passed, 1 a test failed or did not "
+                       "compile, 2 usage or the project is not ready (stale generated files: nothing run, no test "
+                       "count).")
     p.add_argument("paths", nargs="*", metavar="PATH", help="test files or directories (default: iec_tests/)")
     p.add_argument("-k", metavar="PATTERN", help="run only tests whose name contains PATTERN (or matches the glob)")
     p.add_argument("-x", action="store_true", help="stop at the first failing test")

@@ -88,7 +88,8 @@ static void usage(FILE *f)
 "journald priorities when stderr is the journal ($JOURNAL_STREAM).\n"
 "\n"
 "Diagnostics are in input registers %u-%u (see runtime.h).  Exit status: 0 after\n"
-"SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error.\n",
+"SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error or when\n"
+"the Modbus address cannot be bound (e.g. the port is in use; nothing is written then).\n",
             DEFAULT_PORT, IO_MAX_DEVICES, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_FRAME_TIMEOUT_MS,
             DEFAULT_RT_PRIORITY,
             DEFAULT_WATCHDOG_MS, DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
@@ -497,6 +498,10 @@ int main(int argc, char **argv)
     }
     if (rt.opt.io == &io_sim_layer)
         rt.flags |= DIAG_FLAG_SIM_IO;
+    if (modbus_server_probe(&rt) != 0) {        /* e.g. the port is taken: an environment problem, nothing written */
+        status = 2;
+        goto out_io;
+    }
     if (retain_open(&rt, &rt.retain) != 0)
         goto out_io;
 
@@ -509,8 +514,10 @@ int main(int argc, char **argv)
     if (monitor_start(&rt, &rt.monitor) != 0)      /* watching is a comfort: the PLC runs without it */
         log_msg(rt.log, LOG_WARN, "monitor: not available (the reason is above); the PLC runs without "
                 "watch and force");
-    if (modbus_server_start(&rt, &rt.server) != 0)
+    if (modbus_server_start(&rt, &rt.server) != 0) {
+        status = 2;                             /* taken since the probe: still the environment */
         goto out_retain;
+    }
 
     if (watchdog_start(&rt, &rt.watchdog) != 0) {
         log_msg(rt.log, LOG_ERROR, "cannot start the watchdog thread");

@@ -737,6 +737,25 @@ static void destroy(modbus_server_t *srv)
     free(srv);
 }
 
+int modbus_server_probe(runtime_t *rt)
+{
+    const rt_options_t *opt = &rt->opt;
+    struct sockaddr_in sa = { .sin_family = AF_INET, .sin_port = htons((uint16_t)opt->port) };
+    int one = 1, fd, rc;
+
+    if (inet_pton(AF_INET, opt->bind, &sa.sin_addr) != 1)
+        return 0;                   /* modbus_server_start names the bad address */
+    fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    if (fd < 0)
+        return 0;
+    setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);     /* as libmodbus listens */
+    rc = bind(fd, (struct sockaddr *)&sa, sizeof sa);
+    if (rc != 0)
+        log_msg(rt->log, LOG_ERROR, "modbus: cannot listen on %s:%d: %s", opt->bind, opt->port, strerror(errno));
+    close(fd);
+    return rc == 0 ? 0 : -1;
+}
+
 int modbus_server_start(runtime_t *rt, modbus_server_t **out)
 {
     const rt_options_t *opt = &rt->opt;

@@ -362,6 +362,9 @@ int scan_run(runtime_t *rt);
 uint64_t now_ns(void);
 
 /* modbus_server.c */
+/* 0 when the Modbus address can be bound now; -1 (logged) when not, e.g. the port is in use: checked before
+ * anything is written, so a runtime that cannot serve leaves no retain file behind. */
+int modbus_server_probe(runtime_t *rt);
 int modbus_server_start(runtime_t *rt, modbus_server_t **out);
 void modbus_server_stop(modbus_server_t *srv);
 
