@@ -26,12 +26,14 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plc import cliargs, runtime
 from plc.hmi import status
 from plc.hmi.monitor import Monitor, MonitorError
 from plc.modbus import LinkError, ModbusClient, ModbusException
 from plc.project import add_view_options
 
+from plc import cliargs, runtime
+
+from .. import project
 from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
@@ -160,7 +162,7 @@ class Hub:
 def _pockets(info: mapinfo.MapInfo, given: int | None) -> int:
     if given:
         return given
-    machine = info.rmap.root / "configs" / "machine.toml"
+    machine = info.rmap.root / project.description(info.rmap.root)
     try:
         data = tomllib.loads(machine.read_text(encoding="utf-8"))
         n = data.get("carousel", {}).get("pockets") or data.get("rack", {}).get("positions")

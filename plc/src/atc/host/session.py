@@ -33,7 +33,8 @@ REASON_ABORT_BY_TOOLCHANGER_FAULT = 101
 WATCH = ("ToolPrepared", "ToolChanged", "StartChangeAck", "EmcAbortAck", "ToolchangerFault", "PlcReady",
          "CarouselHomed", "ChangerBusy", "HostLinkOk", "PlcAlive", "ToolchangerReason", "PlcHeartbeat",
          "IovState", "ChangerState", "FaultReason", "ToolInSpindle", "CurrentPocket", "EmcAbort", "ToolChange",
-         "StartChange", "Recovery", "UncertainTool", "SimSpindleTool")
+         "StartChange", "Recovery", "UncertainTool", "SimSpindleTool", "ToolPrepare")
+REQUESTS = ("ToolPrepare", "StartChange", "ToolChange", "EmcAbort")   # the host's command coils
 RECOVERY_HOME, RECOVERY_CONFIRM = 1, 2   # bits of the Recovery register
 
 
@@ -100,8 +101,11 @@ class Session:
 
     # ---------------------------------------------------------------- start / stop --
     def start(self) -> dict:
-        """Restore the host's view from the PLC, start the heartbeat, wait for the PLC to see the link."""
+        """Restore the host's view from the PLC, start the heartbeat, wait for the PLC to see the link; requests
+        of a host that stopped are taken over first (take_over)."""
         s = self.tags.read(*self.watch)
+        left = [n for n in REQUESTS if s.get(n)]
+        orphaned = bool(left) and not self._another_host_alive()
         self.tool_number = int(s.get("ToolInSpindle", 0))
         self.faulted = bool(self.tags.get("ToolchangerFaulted")) if self.tags.has("ToolchangerFaulted") else False
         self.fault_reason = int(s.get("FaultReason", 0)) if self.faulted else 0
@@ -116,7 +120,50 @@ class Session:
         if "HostLinkOk" in self.watch:
             s = self.wait(lambda s: s["HostLinkOk"], self.timeouts.link, "the PLC to see the host heartbeat "
                           "(HostLinkOk)")
+        if orphaned:
+            s = self.take_over(left)
         return s
+
+    def _another_host_alive(self) -> bool:
+        """Does another host beat? Its heartbeat register changes at least every host_heartbeat_period_ms; one
+        that stays the same for host_timeout_ms (what the PLC itself calls a lost link) has no host behind it."""
+        name = self.rmap.link.host_heartbeat
+        first = self.tags.get(name)
+        deadline = time.monotonic() + self.rmap.link.host_timeout_ms / 1000.0
+        while time.monotonic() < deadline:
+            time.sleep(self.rmap.link.host_heartbeat_period_ms / 1000.0 / 4)
+            if self.tags.get(name) != first:
+                return True
+        return False
+
+    def take_over(self, left: list[str]) -> dict:
+        """Requests a host left set when it stopped (killed, link lost) are ended the way their handshake ends: a
+        request the PLC had already answered is dropped (that change or prepare was done, and said so); a request
+        still running is aborted (emc-abort, task abort) so the PLC stops what the dead host started and reports
+        what it needs (a fault to clear, a recovery). The mailbox is not served meanwhile: the dead host's moves
+        are not executed for it. Returns the PLC's values afterwards."""
+        mailbox, self.mailbox = self.mailbox, None
+        try:
+            s = self.poll()
+            done = {"ToolPrepare": "ToolPrepared", "StartChange": "StartChangeAck", "ToolChange": "ToolChanged",
+                    "EmcAbort": "EmcAbortAck"}
+            running = [n for n in left if n != "EmcAbort" and not s.get(done[n])]
+            if running:
+                self._abort(REASON_TASK_ABORT)
+                self.say(f"took over from a host that stopped: its {', '.join(running)} aborted (emc-abort "
+                         f"{REASON_TASK_ABORT}); the PLC reports what it needs below")
+            else:
+                self.tags.write(**{n: False for n in left})
+                for name in left:
+                    self.wait(lambda s, a=done[name]: not s[a], self.timeouts.ack_drop, f"{done[name]} to drop")
+                self.say(f"took over from a host that stopped: its {', '.join(left)} had been answered and "
+                         "are dropped")
+            s = self.poll()
+            self.tool_number = int(s.get("ToolInSpindle", self.tool_number))
+            self.tags.write(ToolNumber=self.tool_number)
+            return s
+        finally:
+            self.mailbox = mailbox
 
     def stop(self) -> None:
         self._stop.set()
