@@ -24,6 +24,10 @@ def machine(*args, cwd=ROOT):
 def test_the_shipped_configuration_checks_clean_and_matches_the_generated_st():
     proc = machine("check")
     assert proc.returncode == 0, proc.stderr
+    # a one-line summary on success (issue 27: it printed nothing)
+    assert proc.stderr.splitlines() == ["plc machine check: machines/default/machine.toml: ok (6 pockets; the "
+                                        "register map and the sequences agree; its 3 generated files are up to "
+                                        "date)"], proc.stderr
 
 
 def test_generation_is_reproducible(tmp_path):
@@ -37,7 +41,7 @@ def test_drift_is_an_error(tmp_path):
     out.write_text(GENERATED.read_text().replace("Rotary.pockets := 6;", "Rotary.pockets := 7;"))
     proc = machine("check", "--out", str(out))
     assert proc.returncode == 1
-    assert "out of date" in proc.stderr
+    assert "out of date" in proc.stderr and ": ok (" not in proc.stderr
 
 
 def line_of(text: str, needle: str) -> int:

@@ -99,6 +99,9 @@ def check_and_generate(config: Path, out: Path | None, write: bool, label: str |
     data, ck = load(config, _rel(config, root))
     if not write and where(config) != where(root / project.description(root)):
         report(ck)                  # another file (e.g. an example): its own checks only, not the project's
+        if not ck.problems:
+            print(f"plc machine check: {_rel(config, root)}: ok (its own checks: it is not the project's machine)",
+                  file=sys.stderr)
         return 1 if ck.problems else 0
     if not ck.problems:
         check_sequences(ck, data, root, label or config.as_posix())
@@ -118,6 +121,10 @@ def check_and_generate(config: Path, out: Path | None, write: bool, label: str |
         stale = drift(root, files)
         for rel in stale:
             print(f"{rel}: error: out of date with {label}: run `plc machine generate`", file=sys.stderr)
+        if not stale:
+            places = "positions" if "rack" in data else "pockets"
+            print(f"plc machine check: {label}: ok ({pockets(data)} {places}; the register map and the sequences "
+                  f"agree; its {len(files)} generated files are up to date)", file=sys.stderr)
         return 1 if stale else 0
     return write_all(root, files)
 
