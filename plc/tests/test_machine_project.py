@@ -62,6 +62,14 @@ def test_a_wrong_machine_file_is_a_positioned_error_before_anything_runs(project
     refused_by_run(project, message)
 
 
+def test_a_machine_file_that_is_not_toml_is_named_once_not_also_as_a_map_problem(project):
+    """Issue 27: invalid TOML in the machine file made `plc run` also say "fix the register map"."""
+    path = project / MACHINE
+    path.write_text(path.read_text() + "pockets = = 3\n")
+    stderr = refused_by_run(project, f"{MACHINE}:", "not valid TOML", "fix the machine description")
+    assert "fix the register map" not in stderr, stderr
+
+
 def test_a_pocket_count_the_sequences_do_not_cover_names_both_files_and_the_fix(project):
     line = edit(project / MACHINE, "pockets = 6 ", "pockets = 8 ")
     seq_line = next(n for n, l in enumerate((project / "configs/sequences/sequences.toml").read_text()
