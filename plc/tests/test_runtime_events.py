@@ -19,6 +19,7 @@ import rt_harness as h
 from plc import driver, runtime
 from atc.hmi import mapinfo
 from atc.runsetup import runtime_setup
+from plc.hmi import status
 from plc.hmi.monitor import Monitor
 from plc.modbus import ModbusClient
 from atc.host.session import Session, Timeouts
@@ -78,6 +79,10 @@ def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app,
                 rt.wait_for(r"warning: E-stop: the E-stop chain opened")
                 rt.wait_for(r"error: fault -101 ESTOP raised: E-stop chain opened: toolchanger stopped, outputs safe")
                 rt.wait_for(r"status RUN \| tool 3 \| changer \w+ \| fault -101 ESTOP")
+                # issue 27: `plc status` tells the application's fault and exits 1 while the runtime runs
+                h.wait_until(lambda: status.read(client)["app_fault"] == -101, 5, "the fault in the diag block")
+                assert status.main(["--port", str(rt.port)]) == 1
+                assert any("application fault -101 latched" in line for line in status.render(status.read(client)))
                 mon.unforce("%IX49.7", restore=True)
                 rt.wait_for(r"E-stop released: the E-stop chain is closed")
             # iov2 answers a faulted changer's prepare: the log must not call it done
@@ -87,6 +92,8 @@ def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app,
             assert "prepare tool 5 done" not in rt.log
             assert session.clear().ok
             rt.wait_for(r"fault -101 ESTOP cleared")
+            h.wait_until(lambda: status.read(client)["app_fault"] == 0, 5, "the fault gone from the diag block")
+            assert status.main(["--port", str(rt.port)]) == 0
             assert session.home().ok
             rt.wait_for(r"homing started")
             rt.wait_for(r"homing ended: carousel homed, pocket \d+ at the change position")

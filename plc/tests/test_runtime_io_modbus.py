@@ -185,6 +185,10 @@ class Plc:
                "--map", str(self.sources.parent / "modbus_map" / "map.toml"), *words]
         return subprocess.run(cmd, cwd=REPO / "plc", capture_output=True, text=True, timeout=120 * SLOW)
 
+    def status(self) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "plc.cli", "status", "--port", str(self.port)], cwd=REPO / "plc",
+                              capture_output=True, text=True, timeout=60 * SLOW)
+
     def read(self, *names: str) -> dict:
         with ModbusClient("127.0.0.1", self.port) as client:
             return Tags(RMAP, client).read(*names)
@@ -420,6 +424,10 @@ def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(fault_r
     values = rig.plc.read("IoModule1Lost", "FaultReason", "CarouselMotorOn", "ToolInSpindle")
     assert values["IoModule1Lost"] is True and values["FaultReason"] == REASON_MODULE_1_LOST
     assert values["CarouselMotorOn"] is False and values["ToolInSpindle"] != 5
+    status = rig.plc.status()               # issue 27: the runtime runs, but its I/O does not: exit 1
+    assert status.returncode == 1, status.stdout + status.stderr
+    assert "state       RUNNING" in status.stdout
+    assert "io devices  1: 1 LOST (device 1 lost" in status.stdout, status.stdout
     m = re.search(r"I/O device 1 \(changer\): lost: .* outputs safe at monotonic ([0-9.]+) s", rig.plc.text())
     assert m, rig.plc.text()[-3000:]
     safe_at = float(m.group(1))
@@ -438,6 +446,8 @@ def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(fault_r
     assert rig.plc.read("FaultReason")["FaultReason"] == REASON_MODULE_1_LOST, "the fault stays until cleared"
     ok(rig.plc.host("clear"), rig.plc)
     assert rig.plc.read("FaultReason")["FaultReason"] == 0
+    status = rig.plc.status()
+    assert status.returncode == 0 and "io devices  1: 1 ok" in status.stdout, status.stdout + status.stderr
 
 
 def test_a_slow_module_still_completes_a_change(fault_rig):

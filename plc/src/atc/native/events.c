@@ -451,6 +451,11 @@ publish:
     atomic_store(&ev->have_fault, HAS(R_FAULT_REASON));
 }
 
+int events_fault(events_t *ev)
+{
+    return ev && atomic_load(&ev->have_fault) ? atomic_load(&ev->fault) : 0;
+}
+
 void events_status(events_t *ev, char *out, size_t n)
 {
     char a[24];

@@ -131,5 +131,8 @@ void events_close(events_t *ev);
 void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now);  /* scan thread */
 /* The application's part of the status line (log thread); "" when none. */
 void events_status(events_t *ev, char *out, size_t n);
+/* The application's latched fault code now, 0 = none (also with ev NULL): the diagnostic block carries it
+ * (DIAG_APP_FAULT) so that `plc status` reports it and exits 1. Any thread. */
+int events_fault(events_t *ev);
 
 #endif /* PLC_MONITOR_H */

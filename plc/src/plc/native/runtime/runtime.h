@@ -104,6 +104,7 @@ enum diag_offset {
     DIAG_WAKE_P50_US = 46,     /* u32 */
     DIAG_UPTIME_S = 48,        /* u32: seconds since the scan loop started */
     DIAG_SKIPPED = 50,         /* u32: deadlines skipped after long overruns */
+    DIAG_APP_FAULT = 54,       /* i16: the application's latched fault code (events_fault), 0 = none */
     DIAG_DROPPED = 52          /* u32: connections the server closed (frame timeout, slow
                                   reader, slot reclaimed, not Modbus, socket error) */
 };

@@ -257,6 +257,9 @@ static void publish_diag(runtime_t *rt, uint64_t started)
     diag_put32(b, DIAG_SKIPPED, s->skipped);
     diag_put32(b, DIAG_RETAIN_SAVES, rt->retain ? retain_saves(rt->retain) : 0);
     diag_put32(b, DIAG_UPTIME_S, (uint32_t)((now_ns() - started) / 1000000000u));
+    int app_fault = events_fault(rt->events);
+    diag_put16(b, DIAG_APP_FAULT, (uint16_t)(int16_t)(app_fault < -32768 ? -32768 : app_fault > 32767 ? 32767
+                                                                                     : app_fault));
 }
 
 static void refresh_percentiles(scan_stats_t *s)
