@@ -326,13 +326,14 @@ def test_help_and_version(binary):
     assert result.returncode == 0 and result.stdout.startswith("plc-runtime ")
 
 
-def test_a_port_in_use_fails_start_up_with_exit_1(binary):
+def test_a_port_in_use_fails_start_up_with_exit_2(binary):
+    """An environment problem (exit 2, as a usage error; issue 27), found before anything is written."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
         rc, err = run_to_end(binary, "--no-rt", "--port", str(port))
-    assert rc == 1 and f"cannot listen on 127.0.0.1:{port}" in err, err
+    assert rc == 2 and f"cannot listen on 127.0.0.1:{port}" in err, err
 
 
 def test_a_missing_retain_directory_fails_start_up(binary, tmp_path):

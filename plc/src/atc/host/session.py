@@ -125,15 +125,21 @@ class Session:
         return s
 
     def _another_host_alive(self) -> bool:
-        """Does another host beat? Its heartbeat register changes at least every host_heartbeat_period_ms; one
-        that stays the same for host_timeout_ms (what the PLC itself calls a lost link) has no host behind it."""
+        """Does another host beat? This host beats meanwhile (the PLC must not lose the link while it looks: a
+        busy changer faults after host_timeout_ms without a beat) and reads its own value back: a live host
+        writes its own every host_heartbeat_period_ms / 2, so within a few periods a read shows a value this
+        host did not write. Watched for half the PLC's own link time-out."""
         name = self.rmap.link.host_heartbeat
-        first = self.tags.get(name)
-        deadline = time.monotonic() + self.rmap.link.host_timeout_ms / 1000.0
+        period = self.rmap.link.host_heartbeat_period_ms / 1000.0
+        beat = (int(self.tags.get(name)) + 0x5A5A) & 0xFFFF       # far from any other host's counter
+        deadline = time.monotonic() + max(4 * period, self.rmap.link.host_timeout_ms / 2000.0)
         while time.monotonic() < deadline:
-            time.sleep(self.rmap.link.host_heartbeat_period_ms / 1000.0 / 4)
-            if self.tags.get(name) != first:
+            beat = (beat + 1) & 0xFFFF
+            self.tags.write(**{name: beat})
+            time.sleep(period / 4)
+            if int(self.tags.get(name)) != beat:
                 return True
+        self._beat = beat
         return False
 
     def take_over(self, left: list[str]) -> dict:
