@@ -14,7 +14,6 @@ it (about a second), under a lock, and swapped in whole: it is never half-writte
 """
 from __future__ import annotations
 
-import re
 import tomllib
 from pathlib import Path
 
@@ -25,7 +24,6 @@ DESCRIPTION = "machine.toml"
 RUN_CONFIG = "runtime.toml"
 FALLBACK = "default"
 SEQUENCES = "configs/sequences/sequences.toml"   # a machine's sequence set unless its [sequences] index says
-NAME = re.compile(r"[a-z0-9][a-z0-9_-]{0,63}")
 
 
 class MachineError(Exception):

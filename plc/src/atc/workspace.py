@@ -45,7 +45,7 @@ def build_workspace(root: Path, name: str) -> Path:
     target, fresh, old = base / name, base / f".{name}.new", base / f".{name}.old"
     with open(base / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        stamp = _stamp(root, name)
+        stamp = _stamp(root)
         try:
             if (target / STAMP).read_text() == stamp:
                 return target
@@ -58,8 +58,7 @@ def build_workspace(root: Path, name: str) -> Path:
         cache = base / ".cache" / name      # build/ of the view (compiled programs, test binaries): kept across builds
         cache.mkdir(parents=True, exist_ok=True)
         (fresh / "build").symlink_to(cache)
-        for top in VIEWED:
-            _link_tree(root / top, fresh / top)
+        _link_files(root, fresh)
         (fresh / PROJECT_FILE).write_text(
             f"# The workspace of machine {name}, built by plc from {root}: do not edit (rebuilt by every command "
             f"given --machine {name}).\n[project]\nmachine = \"{name}\"\n\n[workspace]\nsource = "
@@ -79,7 +78,8 @@ def build_workspace(root: Path, name: str) -> Path:
     return target
 
 
-def _sources(root: Path, name: str):
+def _sources(root: Path):
+    """The hand-owned files a workspace shows: every file of VIEWED but state and caches."""
     for top in VIEWED:
         for dirpath, dirnames, filenames in os.walk(root / top):
             dirnames[:] = sorted(d for d in dirnames if d not in SKIPPED)
@@ -88,28 +88,22 @@ def _sources(root: Path, name: str):
                     yield Path(dirpath) / f
 
 
-def _stamp(root: Path, name: str) -> str:
+def _stamp(root: Path) -> str:
     """What the workspace is made of: every source file's path, size and modification time, and this package."""
     h = hashlib.sha256(str(Path(__file__).parent).encode())
-    for path in (*_sources(root, name), *Path(__file__).parent.rglob("*.py")):
+    for path in (*_sources(root), *Path(__file__).parent.rglob("*.py")):
         st = path.stat()
         h.update(f"{path}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
     return h.hexdigest()
 
 
-def _link_tree(src: Path, dst: Path) -> None:
-    """dst mirrors src: real directories, each file a link to its original (edits go to the project's file)."""
-    if not src.is_dir():
-        return
-    for dirpath, dirnames, filenames in os.walk(src):
-        dirnames[:] = [d for d in dirnames if d not in SKIPPED]
-        here = Path(dirpath)
-        out = dst / here.relative_to(src)
-        out.mkdir(parents=True, exist_ok=True)
-        for f in filenames:
-            if f.endswith((".retain", ".tmp", ".pyc")):
-                continue
-            (out / f).symlink_to(here / f)
+def _link_files(root: Path, dst: Path) -> None:
+    """dst mirrors root's hand-owned files: real directories, each file a link to its original (edits go to the
+    project's file)."""
+    for path in _sources(root):
+        out = dst / path.relative_to(root)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.symlink_to(path)
 
 
 def _toml_escape(text: str) -> str:
