@@ -1,6 +1,6 @@
 """The Logosol limit of 50 pockets has one home, atc.machine.MAX_POCKETS; the ST and the map, which cannot import it
 (MATIEC takes no constant as an array bound), are checked against it here: the T_PocketTable type, every
-MaxPockets constant (and RetainedWords = 4 + MaxPockets), the map's PocketTool series, the sequences' tool limit.
+MaxPockets constant (and RetainedWords = the map's retained INT words: 5 + MaxPockets), the map's PocketTool series, the sequences' tool limit.
 No pocket table of the application is declared with a literal bound."""
 from __future__ import annotations
 
@@ -26,13 +26,16 @@ def test_the_pocket_table_type_has_the_limit():
 
 
 def test_every_max_pockets_constant_agrees():
+    rmap = tomllib.loads((REPO / "modbus_map" / "map.toml").read_text())
+    retained_ints = [s["name"] for s in rmap["signal"] if s.get("retained") and s["type"] == "INT"]
+    assert len(retained_ints) == 5 + MAX_POCKETS, retained_ints
     found = {}
     for path in st_files():
         for m in re.finditer(r"\bMaxPockets\s*:\s*INT\s*:=\s*(\d+)", path.read_text()):
             found[path.relative_to(REPO).as_posix()] = int(m.group(1))
         m = re.search(r"\bRetainedWords\s*:\s*INT\s*:=\s*(\d+)", path.read_text())
         if m:
-            assert int(m.group(1)) == 4 + MAX_POCKETS, path
+            assert int(m.group(1)) == len(retained_ints), path
     assert len(found) >= 8, found
     assert {k: v for k, v in found.items() if v != MAX_POCKETS} == {}
 

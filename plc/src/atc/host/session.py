@@ -36,6 +36,7 @@ WATCH = ("ToolPrepared", "ToolChanged", "StartChangeAck", "EmcAbortAck", "Toolch
          "StartChange", "Recovery", "UncertainTool", "SimSpindleTool", "ToolPrepare")
 REQUESTS = ("ToolPrepare", "StartChange", "ToolChange", "EmcAbort")   # the host's command coils
 RECOVERY_HOME, RECOVERY_CONFIRM = 1, 2   # bits of the Recovery register
+REASON_CONFIRM_TOOL = -108               # a change refused until the tool in the spindle is confirmed
 
 
 class HostError(Exception):
@@ -372,7 +373,12 @@ class Session:
             self._abort(REASON_MOTION_OR_IO_ERROR)
             return Outcome(False, f"M6 {what} with reason 0: the program aborts", reason)
         self._abort(REASON_MOTION_OR_IO_ERROR)
-        return Outcome(False, f"M6 {what}: toolchanger error {reason}: {self.reason_text(reason)}", reason)
+        text = f"M6 {what}: toolchanger error {reason}: {self.reason_text(reason)}"
+        if reason == REASON_CONFIRM_TOOL:
+            s = self.poll()
+            if int(s.get("Recovery", 0)) & RECOVERY_CONFIRM:
+                text += "; " + self.confirm_advice(s)
+        return Outcome(False, text, reason)
 
     def _abort_for_fault(self, reason: int, emc_reason: int) -> Outcome:
         self._abort(emc_reason)
@@ -437,9 +443,23 @@ class Session:
         if recovery & RECOVERY_HOME:
             return Outcome(False, text + ", but the PLC still asks to home the changer (is it faulted? clear first)")
         if recovery & RECOVERY_CONFIRM:
-            text += (f"; tool {int(s['UncertainTool'])} is in the spindle or in its pocket: look, then "
-                     f"`plc host confirm {int(s['UncertainTool'])}` or `plc host confirm 0` (empty spindle)")
+            text += "; " + self.confirm_advice(s)
         return Outcome(True, text)
+
+    def pocketless(self, s: dict) -> bool:
+        """The uncertain tool has no pocket on this machine (retained data saved on one with more pockets:
+        README, "Retained data on another machine"): only an empty spindle can be confirmed."""
+        count = int(self.tags.get("PocketCount")) if self.tags.has("PocketCount") else 0
+        return 0 < count < int(s.get("UncertainTool", 0))
+
+    def confirm_advice(self, s: dict) -> str:
+        """What the operator does to confirm the tool in the spindle (Recovery asks to confirm)."""
+        tool = int(s.get("UncertainTool", 0))
+        if self.pocketless(s):
+            return (f"tool {tool} has no pocket on this machine: take it out of the spindle by hand, then "
+                    "`plc host confirm 0` (empty spindle)")
+        return (f"tool {tool} is in the spindle or in its pocket: look, then `plc host confirm {tool}` or "
+                "`plc host confirm 0` (empty spindle)")
 
     def confirm(self, tool: int) -> Outcome:
         """The operator says which tool is in the spindle after an interrupted change (ConfirmTool)."""
@@ -451,9 +471,9 @@ class Session:
         if not recovery & RECOVERY_CONFIRM:
             return Outcome(False, f"confirm: nothing to confirm, the PLC knows tool {int(s['ToolInSpindle'])} is in "
                            "the spindle")
-        if tool not in (0, uncertain):
-            return Outcome(False, f"confirm: tool {uncertain} is either in the spindle or in its pocket: confirm "
-                           f"{uncertain} (in the spindle) or 0 (spindle empty)")
+        if tool not in (0, uncertain) or (tool and self.pocketless(s)):
+            return Outcome(False, "confirm: " + self.confirm_advice(s))
+        where = "taken out (no pocket here)" if self.pocketless(s) else "in its pocket"
         self.tags.write(ConfirmToolNumber=tool)
         self.tags.write(ConfirmTool=False)
         self.tags.write(ConfirmTool=True)
@@ -464,7 +484,7 @@ class Session:
         self.tool_number = int(s["ToolInSpindle"])
         self.tags.write(ToolNumber=self.tool_number)
         return Outcome(True, f"confirm: tool {self.tool_number} in the spindle"
-                       + ("" if tool else f", tool {uncertain} in its pocket"))
+                       + ("" if tool else f", tool {uncertain} {where}"))
 
     def _named(self, signal: str, s: dict) -> str:
         """A coded signal's value with its name from the map ("4 AtcPutting")."""
@@ -497,8 +517,9 @@ class Session:
                 f", step {seq.get('SeqStep')}, source line {seq.get('SeqLine')}" if kind else " (none running)"))
         recovery = int(s.get("Recovery", 0))
         if recovery:
-            todo = [t for bit, t in ((RECOVERY_HOME, "home the changer"), (RECOVERY_CONFIRM, "confirm the tool "
-                    f"(tool {s.get('UncertainTool')} in the spindle or in its pocket)")) if recovery & bit]
+            todo = [t for bit, t in ((RECOVERY_HOME, "home the changer"),
+                                     (RECOVERY_CONFIRM, f"confirm the tool ({self.confirm_advice(s)})"))
+                    if recovery & bit]
             lines.append("recovery before the next change: " + ", then ".join(todo))
         if s.get("SimSpindleTool"):
             lines.append(f"simulated plant: the spindle holds tool {s['SimSpindleTool']}")

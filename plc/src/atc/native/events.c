@@ -43,13 +43,14 @@ enum role {
     R_TOOL_IN_SPINDLE, R_CHANGER_STATE, R_FAULT_REASON, R_TOOL_CHANGE, R_TOOL_CHANGED, R_TOOL_PREPARE,
     R_TOOL_PREPARED, R_PREP_NUMBER, R_PREP_POCKET, R_TOOL_NUMBER, R_EMC_ABORT, R_EMC_REASON, R_ESTOP_OK,
     R_HOST_LINK_OK, R_CAROUSEL_HOMED, R_CURRENT_POCKET, R_SEQ_KIND, R_IOV_STATE, R_SIMULATED_PLANT,
-    R_SIM_ESTOP, R_ESTOP_CLOSED, R_COUNT
+    R_SIM_ESTOP, R_RESTART_FIT, R_POCKET_COUNT, R_POCKET_TOOL1, R_UNCERTAIN_TOOL, R_ESTOP_CLOSED, R_COUNT
 };
 
 static const char *const role_signal[R_COUNT] = {
     "ToolInSpindle", "ChangerState", "FaultReason", "ToolChange", "ToolChanged", "ToolPrepare",
     "ToolPrepared", "ToolPrepNumber", "ToolPrepPocket", "ToolNumber", "EmcAbort", "EmcReason", "EStopOk",
     "HostLinkOk", "CarouselHomed", "CurrentPocket", "SeqKind", "IovState", "SimulatedPlant", "SimEStop",
+    "RestartFit", "PocketCount", "PocketTool1", "UncertainTool",
     NULL,   /* derived: the E-stop chain as the application sees it */
 };
 
@@ -64,6 +65,11 @@ static const struct { int code; const char *name; } cnc_reasons[] = {
 #define EV_LINES_PER_S 20
 #define MAX_STATES 32
 #define MAX_REASONS 256
+#define MAX_POCKETS 50          /* PocketTool1..50: consecutive holding registers from PocketTool1 */
+
+/* RestartFit bits: what the application's first scan changed to fit the retained data to the machine
+ * (FB_AtcChanger, README, "Retained data on another machine") */
+enum { FIT_OTHER_SIZE = 1, FIT_DROPPED = 2, FIT_NEW_POCKETS = 4, FIT_NO_POCKET = 8 };
 
 typedef struct watched {
     bool present;
@@ -81,6 +87,9 @@ struct events {
     reason_t reasons[MAX_REASONS];
     unsigned n_reasons;
 
+    /* the retained data as restored, before the first scan fits them to the machine (RestartFit) */
+    int64_t saved_tool, saved_count, saved_pocket[MAX_POCKETS + 1];
+
     /* scan thread */
     bool primed;
     int64_t prev[R_COUNT];
@@ -97,6 +106,8 @@ struct events {
     atomic_int tool, state, fault;
     atomic_bool have_tool, have_state, have_fault;
 };
+
+static int64_t read_signal(const watched_t *w, const prog_image_t *p);
 
 /* ---------------------------------------------------------- description */
 
@@ -223,6 +234,16 @@ int events_open(runtime_t *rt, const char *path, events_t **out)
         }
     }
     fclose(f);
+    /* the retained data are restored by now: keep what the first scan may drop, to tell it */
+    ev->saved_tool = ev->sig[R_TOOL_IN_SPINDLE].present ? read_signal(&ev->sig[R_TOOL_IN_SPINDLE], &rt->pimg) : 0;
+    ev->saved_count = ev->sig[R_POCKET_COUNT].present ? read_signal(&ev->sig[R_POCKET_COUNT], &rt->pimg) : 0;
+    if (ev->sig[R_POCKET_TOOL1].present && ev->sig[R_POCKET_TOOL1].table == 'h'
+            && ev->sig[R_POCKET_TOOL1].addr + MAX_POCKETS <= MAP_HOLDING)
+        for (int n = 1; n <= MAX_POCKETS; n++) {
+            watched_t w = ev->sig[R_POCKET_TOOL1];
+            w.addr += (unsigned)(n - 1);
+            ev->saved_pocket[n] = read_signal(&w, &rt->pimg);
+        }
     unsigned watched = 0;
     for (int r = 0; r < R_COUNT; r++)
         watched += ev->sig[r].present;
@@ -320,6 +341,51 @@ static bool ev_budget(events_t *ev, runtime_t *rt, uint64_t now)
 #define FELL(r) (HAS(r) && !cur[r] && ev->prev[r])
 #define CHANGED(r) (HAS(r) && cur[r] != ev->prev[r])
 
+/* The first scan fitted retained data saved on another machine (another pocket count) to this one: say what
+ * it changed and what the operator has to do (README, "Retained data on another machine"). */
+static void tell_restart_fit(const events_t *ev, log_sink_t *log, const int64_t *cur)
+{
+    int64_t fit = cur[R_RESTART_FIT], count = HAS(R_POCKET_COUNT) ? cur[R_POCKET_COUNT] : 0;
+    if (fit & FIT_OTHER_SIZE) {
+        if (ev->saved_count > 0)
+            log_msg(log, LOG_WARN, "retained data: the pocket table was saved on a machine with %" PRId64
+                    " pockets; this one has %" PRId64, ev->saved_count, count);
+        else
+            log_msg(log, LOG_WARN, "retained data: the pocket table was saved without its pocket count (an older "
+                    "version) and does not fit this machine's %" PRId64 " pockets", count);
+    }
+    if ((fit & FIT_DROPPED) && count >= 1 && count < MAX_POCKETS) {
+        char tools[256];
+        size_t used = 0;
+        int first = 0, last = 0;
+        tools[0] = 0;
+        for (int n = (int)count + 1; n <= MAX_POCKETS; n++) {
+            if (!ev->saved_pocket[n])
+                continue;
+            first = first ? first : n;
+            last = n;
+            if (used >= sizeof tools - 32)
+                continue;
+            if (ev->saved_pocket[n] < 0)
+                used += (size_t)snprintf(tools + used, sizeof tools - used, "%spocket %d: the uncertain tool",
+                                         used ? ", " : "", n);
+            else
+                used += (size_t)snprintf(tools + used, sizeof tools - used, "%sT%" PRId64, used ? ", " : "",
+                                         ev->saved_pocket[n]);
+        }
+        log_msg(log, LOG_WARN, "retained data: pockets %d..%d are not on this machine: what they held (%s) is "
+                "dropped from the pocket table", first, last, tools);
+    }
+    if (fit & FIT_NEW_POCKETS)
+        log_msg(log, LOG_INFO, "retained data: the pockets the saved table did not have start as on a first start "
+                "(pocket n holds tool n, up to %" PRId64 ")", count);
+    if (fit & FIT_NO_POCKET)
+        log_msg(log, LOG_ERROR, "retained data: tool %" PRId64 " in the spindle has no pocket on this machine; "
+                "every change is refused until the operator takes it out of the spindle and confirms an empty "
+                "spindle (plc host confirm 0; Recovery %s)", ev->saved_tool,
+                HAS(R_UNCERTAIN_TOOL) && cur[R_UNCERTAIN_TOOL] == ev->saved_tool ? "asks for it" : "?");
+}
+
 void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
 {
     int64_t cur[R_COUNT];
@@ -349,6 +415,8 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
         }
         if (HAS(R_ESTOP_CLOSED) && !cur[R_ESTOP_CLOSED])
             log_msg(log, LOG_WARN, "E-stop: the E-stop chain is open");
+        if (HAS(R_RESTART_FIT) && cur[R_RESTART_FIT])
+            tell_restart_fit(ev, log, cur);
         goto publish;
     }
 
