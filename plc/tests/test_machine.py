@@ -88,6 +88,20 @@ def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
     assert "pocket_codes: code 5 is used twice" in proc.stderr
 
 
+def test_an_invert_code_list_shorter_than_the_code_inputs_is_an_error_naming_both_lengths(tmp_path):
+    # issue 27: `invert_code = [false, false]` with 4 code inputs was accepted, inputs 3 and 4 silently not inverted
+    bad = CONFIG.read_text().replace('inputs = "home+pocket"', 'inputs = "code"').replace(
+        "code_inputs = 3 ", "code_inputs = 4 ").replace(
+        "invert_minus_dir = false", "invert_minus_dir = false\ninvert_code = [false, false]")
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(bad)
+    proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
+    assert proc.returncode == 1, proc.stderr
+    line = line_of(bad, "invert_code =")
+    assert f"{cfg}:{line}: error: [carousel] invert_code: 2 values for 4 code inputs" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
 RACK = ROOT / "machines" / "rack8" / "machine.toml"
 
 

@@ -243,8 +243,13 @@ def cross_checks(ck: Checker, data: dict) -> None:
     uses_codes = "code" in car["inputs"]
     codes = car.get("pocket_codes", [])
     n_inputs = car.get("code_inputs", 3)
-    if len(car.get("invert_code", [])) > 6:
+    inverted = car.get("invert_code")
+    if inverted is not None and len(inverted) > 6:
         ck.error("carousel", "invert_code", "[carousel] invert_code: at most 6 code inputs")
+    elif inverted is not None and uses_codes and len(inverted) < n_inputs:
+        ck.error("carousel", "invert_code",
+                 f"[carousel] invert_code: {len(inverted)} values for {n_inputs} code inputs (code_inputs = "
+                 f"{n_inputs}): one per code input, true where the input is active low")
     if uses_codes:
         if len(codes) != pockets:
             ck.error("carousel", "pocket_codes",
