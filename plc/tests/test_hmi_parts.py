@@ -64,6 +64,13 @@ def test_plc_monitor_without_a_runtime_exits_2(tmp_path, capsys):
     assert "is `plc run` running" in capsys.readouterr().err
 
 
+def test_plc_monitor_watch_names_the_period_it_can_serve(tmp_path, capsys):
+    # issue 27: `--period 5` was answered in the channel's words ("sub MS PATH...: MS is the period...")
+    assert monitor_cli.main(["--socket", str(tmp_path / "none.sock"), "watch", "X", "--period", "5"]) == 2
+    err = capsys.readouterr().err
+    assert "argument --period: 5 ms: the update period is 10..10000 ms" in err and "sub MS" not in err, err
+
+
 def _page_client(tmp_path):
     """The page's web app against a PLC that is not there (the guards answer before any PLC is asked)."""
     import socket

@@ -26,6 +26,20 @@ from .monitor import Monitor, MonitorError, read_token
 from ..project import add_view_options, project_root
 
 
+PERIOD_MS = (10, 10000)        # the update periods the runtime's subscriptions serve (monitor.c, `sub MS`)
+
+
+def period_ms(text: str) -> int:
+    """--period: a whole number of milliseconds the runtime can serve (argparse names the option on an error)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of milliseconds") from None
+    if not PERIOD_MS[0] <= value <= PERIOD_MS[1]:
+        raise argparse.ArgumentTypeError(f"{value} ms: the update period is {PERIOD_MS[0]}..{PERIOD_MS[1]} ms")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="plc monitor", description="Watch, write and force variables of the running "
                                 "soft-PLC (its monitoring channel, never the Modbus port).",
@@ -44,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("paths", nargs="+", metavar="PATH")
     q = sub.add_parser("watch", help="values as they change, every --period ms")
     q.add_argument("paths", nargs="+", metavar="PATH")
-    q.add_argument("--period", type=int, default=100, metavar="MS", help="update period, 10..10000 (default 100)")
+    q.add_argument("--period", type=period_ms, default=100, metavar="MS",
+                   help=f"update period, {PERIOD_MS[0]}..{PERIOD_MS[1]} ms (default 100)")
     q.add_argument("--count", type=int, default=0, metavar="N", help="stop after N updates (default: Ctrl-C)")
     for name, text in (("write", "set once, before the next scan's program"), ("force", "hold a value")):
         q = sub.add_parser(name, help=text)
