@@ -71,6 +71,22 @@ def test_plc_monitor_watch_names_the_period_it_can_serve(tmp_path, capsys):
     assert "argument --period: 5 ms: the update period is 10..10000 ms" in err and "sub MS" not in err, err
 
 
+class _TwelveCounters:
+    """A monitor whose program has twelve FB instances with a COUNT, and one STEPS array."""
+    def list(self, prefix):
+        paths = [f"CONFIG0.RES0.INST0.C{i}.COUNT" for i in range(1, 13)] + ["CONFIG0.RES0.INST0.COUNTS",
+                                                                            "CONFIG0.RES0.INST0.STEPS"]
+        return [{"path": p} for p in paths if prefix in p]
+
+
+def test_an_ambiguous_monitor_tail_lists_ten_of_the_variables_it_names_and_counts_the_rest():
+    text = monitor_cli.ambiguity(_TwelveCounters(), "count")
+    assert text == ("; it names 12: " + ", ".join(f"CONFIG0.RES0.INST0.C{i}.COUNT" for i in range(1, 11))
+                    + " and 2 more (plc monitor vars COUNT)"), text
+    assert monitor_cli.tail_length("CONFIG0.RES0.INST0.STEPS", "INST0.STEPS[3].LINE") == len("INST0.STEPS")
+    assert monitor_cli.tail_length("CONFIG0.RES0.INST0.COUNTS", "COUNT") == 0
+
+
 def _page_client(tmp_path):
     """The page's web app against a PLC that is not there (the guards answer before any PLC is asked)."""
     import socket

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 import rt_harness as h
+from plc.hmi import cli as monitor_cli
 from plc.hmi.monitor import Monitor, MonitorError
 
 MAIN = """\
@@ -49,6 +50,7 @@ VAR
 END_VAR
 VAR
     counter : FB_Counter;
+    spare : FB_Counter;             (* never called: its COUNT makes the tail COUNT ambiguous *)
     pairs : ARRAY[1..3] OF ST_Pair;
     gain : INT := 2;
     seen : BOOL;
@@ -119,6 +121,16 @@ def test_reads_fb_internals_struct_fields_array_elements_and_located_variables(b
         assert later > scan >= 1
         paths = {v["path"] for v in m.list("INST0")}
         assert "CONFIG0.RES0.INST0.COUNTER.COUNT" in paths and "CONFIG0.RES0.INST0.BUTTON" in paths
+
+
+def test_an_ambiguous_tail_is_refused_with_the_variables_it_names(binary, tmp_path, capsys):
+    # issue 27: `plc monitor read TARGETPOCKET` said "names more than one variable" and not which
+    with Plc(binary, tmp_path) as plc:
+        assert monitor_cli.main(["--socket", str(plc.sock), "read", "count"]) == 1
+        err = capsys.readouterr().err
+        assert "'count' names more than one variable" in err, err
+        assert err.rstrip().endswith("it names 2: CONFIG0.RES0.INST0.COUNTER.COUNT, CONFIG0.RES0.INST0.SPARE.COUNT"), err
+        assert monitor_cli.main(["--socket", str(plc.sock), "read", "INST0.SPARE.COUNT"]) == 0
 
 
 def test_subscription_snapshots_are_per_scan_consistent_and_come_at_ten_hertz_or_more(binary, tmp_path):

@@ -73,7 +73,47 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+AMBIGUOUS = "names more than one variable"    # the runtime's sentence for a tail several paths end with (varpath.c)
+CANDIDATES_SHOWN = 10
+
+
+def tail_length(path: str, tail: str) -> int:
+    """How much of `tail` names `path` the way the runtime resolves a tail (0: none): `path` ends, at a dot, with
+    the start of `tail` up to a field or an index (the rest selects inside the variable)."""
+    for i in [-1] + [i for i, c in enumerate(path) if c == "."]:
+        end = path[i + 1:]
+        if tail == end or tail.startswith((end + ".", end + "[")):
+            return len(end)
+    return 0
+
+
+def ambiguity(m: Monitor, tail: str) -> str:
+    """The variables an ambiguous tail names (those it matches longest, as the runtime compares them): the first
+    CANDIDATES_SHOWN of them and how many more."""
+    tail = tail.upper()
+    first = tail.split(".", 1)[0].split("[", 1)[0]      # in every path the tail names
+    lengths = {v["path"]: tail_length(v["path"], tail) for v in m.list(first)}
+    best = max(lengths.values(), default=0)
+    found = [path for path, n in lengths.items() if n and n == best]
+    if not found:
+        return ""
+    shown = ", ".join(found[:CANDIDATES_SHOWN])
+    more = f" and {len(found) - CANDIDATES_SHOWN} more (plc monitor vars {first})" \
+        if len(found) > CANDIDATES_SHOWN else ""
+    return f"; it names {len(found)}: {shown}{more}"
+
+
 def run(args, m: Monitor) -> int:
+    try:
+        return _run(args, m)
+    except MonitorError as exc:
+        if AMBIGUOUS not in str(exc):
+            raise
+        tail = str(exc).split("'")[1]
+        raise MonitorError(f"{exc}{ambiguity(m, tail)}") from None
+
+
+def _run(args, m: Monitor) -> int:
     if args.cmd in ("write", "force", "unforce"):
         m.auth(read_token(args.token_file))
     if args.cmd == "vars":
