@@ -385,22 +385,36 @@ class Session:
         return Outcome(False, f"M6 aborted at start-change: toolchanger error {reason}: {self.reason_text(reason)}",
                        reason)
 
-    def _abort(self, emc_reason: int) -> None:
-        """emc-abort: reason first, then emc-abort, then the requests drop; held until emc-abort-ack."""
-        self.wait(lambda s: not s["EmcAbortAck"], self.timeouts.ack_drop, "emc-abort-ack of the last abort to drop")
-        self.tags.write(EmcReason=emc_reason)
-        self.tags.write(EmcAbort=True)
-        drop = {n: False for n in ("ToolPrepare", "ToolChange", "StartChange") if self.tags.has(n)}
-        self.tags.write(**drop)
-        try:
-            self.wait(lambda s: s["EmcAbortAck"], self.timeouts.abort, f"emc-abort-ack (reason {emc_reason})")
-        finally:
-            self.tags.write(EmcAbort=False)
-        self.wait(lambda s: not s["EmcAbortAck"], self.timeouts.ack_drop, "emc-abort-ack to drop")
+    def _abort(self, emc_reason: int) -> bool:
+        """emc-abort: reason first, then emc-abort, then the requests drop; held until emc-abort-ack. The coil is
+        shared: another host ending its own abort drops ours too. Then its abort (which the PLC acknowledged) has
+        stopped the changer and ours is not repeated, unless the changer still runs (then it is raised once
+        more). False when the abort that ended it was another host's."""
+        for _attempt in range(2):
+            self.wait(lambda s: not s["EmcAbortAck"], self.timeouts.ack_drop,
+                      "emc-abort-ack of the last abort to drop")
+            self.tags.write(EmcReason=emc_reason)
+            self.tags.write(EmcAbort=True)
+            drop = {n: False for n in ("ToolPrepare", "ToolChange", "StartChange") if self.tags.has(n)}
+            self.tags.write(**drop)
+            try:
+                s = self.wait(lambda s: s["EmcAbortAck"] or not s["EmcAbort"], self.timeouts.abort,
+                              f"emc-abort-ack (reason {emc_reason})")
+            finally:
+                self.tags.write(EmcAbort=False)
+            if s["EmcAbortAck"]:
+                self.wait(lambda s: not s["EmcAbortAck"], self.timeouts.ack_drop, "emc-abort-ack to drop")
+                self.prepared = None
+                return True
+            if not s["ChangerBusy"]:
+                break                  # dropped by another host's abort, which stopped everything already
         self.prepared = None
+        return False
 
     def abort(self, emc_reason: int = REASON_TASK_ABORT) -> Outcome:
-        self._abort(emc_reason)
+        if not self._abort(emc_reason):
+            return Outcome(True, f"abort (emc-reason {emc_reason}): another host's abort, acknowledged by the PLC, "
+                           "stopped the changer first")
         return Outcome(True, f"abort (emc-reason {emc_reason}) acknowledged by the PLC")
 
     def clear(self) -> Outcome:
