@@ -31,6 +31,8 @@ class Behaviour:
     stale_scans: int = 20
     heartbeat: bool = True            # PlcAlive and PlcHeartbeat move
     fault_on_abort: int | None = None  # an abort during a change latches this fault (the real PLC: -103)
+    recovery: int = 0                 # Recovery (+1 home, +2 confirm) and UncertainTool set with a fault
+    uncertain_tool: int = 0
 
 
 @dataclass
@@ -210,6 +212,8 @@ class FakePlc:
         self.set_r("ToolchangerReason", reason)
         self.set_r("FaultReason", reason)
         self.set_c("ToolchangerFault", True)
+        self.set_r("Recovery", self.b.recovery)
+        self.set_r("UncertainTool", self.b.uncertain_tool)
         self.event(f"fault {reason} in {phase}")
 
     def _step(self, st: dict) -> None:

@@ -95,6 +95,26 @@ def test_hard_fault_during_change_prints_the_reason_acks_it_and_exits_1(capsys):
     assert latched
 
 
+@pytest.mark.parametrize("recovery,asked,not_asked", [
+    (0, "the PLC asks no recovery (nothing uncertain): `plc host clear`", ("plc host home", "confirm")),
+    (1, "recovery the PLC asks: `plc host clear`, then `plc host home` (home the changer)", ("confirm",)),
+    (3, "recovery the PLC asks: `plc host clear`, then `plc host home` (home the changer), then confirm the "
+        "tool: tool 5 is in the spindle or in its pocket: look, then `plc host confirm 5`", ()),
+])
+def test_an_interrupted_change_is_told_once_with_only_the_recovery_the_plc_asks(capsys, recovery, asked,
+                                                                                  not_asked):
+    # issue 27: the -103 text said "then confirm the tool" with nothing to confirm, and plc host printed it twice
+    with FakePlc(ADDR, Behaviour(fault_on_change=-103, recovery=recovery, uncertain_tool=5)) as fake:
+        status, out, err = run(fake, capsys, "T5 M6")
+    assert status == 1, out + err
+    text = next(r.text for r in RMAP.reasons if r.code == -103)
+    assert out.count(text) == 1, out
+    assert "confirm the tool" not in text, "the reason's own text may not promise a confirmation"
+    outcome = next(line for line in out.splitlines() if line.startswith("M6 aborted"))
+    assert outcome.startswith("M6 aborted by a toolchanger fault: toolchanger error -103; " + asked), outcome
+    assert not any(word in outcome for word in not_asked), outcome
+
+
 def test_soft_fault_skips_the_change_and_the_program_continues(capsys):
     with FakePlc(ADDR, Behaviour(fault_on_change=106)) as fake:
         status, out, err = run(fake, capsys, "T5 M6")

@@ -37,6 +37,7 @@ WATCH = ("ToolPrepared", "ToolChanged", "StartChangeAck", "EmcAbortAck", "Toolch
 REQUESTS = ("ToolPrepare", "StartChange", "ToolChange", "EmcAbort")   # the host's command coils
 RECOVERY_HOME, RECOVERY_CONFIRM = 1, 2   # bits of the Recovery register
 REASON_CONFIRM_TOOL = -108               # a change refused until the tool in the spindle is confirmed
+REASON_CHANGE_INTERRUPTED = -103         # a Put/Get stopped part-way: Recovery says what became uncertain
 
 
 class HostError(Exception):
@@ -78,6 +79,7 @@ class Session:
     prepared: tuple[int, int] | None = None
     _fault_acked: bool = False
     _new_fault: int | None = None
+    _told: int | None = None            # the fault whose line (reason and text) this host printed last
     _beat: int = 0
     _beat_error: Exception | None = None
     _stop: threading.Event = field(default_factory=threading.Event)
@@ -219,7 +221,7 @@ class Session:
             self.tags.write(ToolchangerFaulted=True)
             self.tags.write(ToolchangerFaultAck=True)
             self._fault_acked = True
-            self.say(f"toolchanger fault {reason}: {self.reason_text(reason)} ({self.severity(reason)})")
+            self._tell_fault(reason)
         elif not s["ToolchangerFault"] and self._fault_acked:
             self.tags.write(ToolchangerFaultAck=False)
             self._fault_acked = False
@@ -353,8 +355,13 @@ class Session:
             reason = int(s["FaultReason"])
             self.faulted, self.fault_reason = True, reason
             self.tags.write(ToolchangerFaulted=True)
-            self.say(f"toolchanger fault {reason}: {self.reason_text(reason)} ({self.severity(reason)})")
+            self._tell_fault(reason)
         return reason
+
+    def _tell_fault(self, reason: int) -> None:
+        """The fault line, as iov2's operator error; said once: the command it ends refers to it."""
+        self._told = reason
+        self.say(f"toolchanger fault {reason}: {self.reason_text(reason)} ({self.severity(reason)})")
 
     def _ended_by_another_host(self, holding: str) -> Outcome:
         """Another host aborted (or dropped our request): drop ours and report; nothing is left to acknowledge."""
@@ -373,11 +380,12 @@ class Session:
             self._abort(REASON_MOTION_OR_IO_ERROR)
             return Outcome(False, f"M6 {what} with reason 0: the program aborts", reason)
         self._abort(REASON_MOTION_OR_IO_ERROR)
-        text = f"M6 {what}: toolchanger error {reason}: {self.reason_text(reason)}"
-        if reason == REASON_CONFIRM_TOOL:
-            s = self.poll()
-            if int(s.get("Recovery", 0)) & RECOVERY_CONFIRM:
-                text += "; " + self.confirm_advice(s)
+        text = f"M6 {what}: toolchanger error {reason}"
+        if reason != self._told:                    # not on the fault line just above
+            text += f": {self.reason_text(reason)}"
+        s = self.poll()
+        if int(s.get("Recovery", 0)) or reason == REASON_CHANGE_INTERRUPTED:
+            text += "; " + self.recovery_advice(s)
         return Outcome(False, text, reason)
 
     def _abort_for_fault(self, reason: int, emc_reason: int) -> Outcome:
@@ -465,6 +473,19 @@ class Session:
         README, "Retained data on another machine"): only an empty spindle can be confirmed."""
         count = int(self.tags.get("PocketCount")) if self.tags.has("PocketCount") else 0
         return 0 < count < int(s.get("UncertainTool", 0))
+
+    def recovery_advice(self, s: dict) -> str:
+        """The recovery the PLC asks for before the next change (FaultReason, Recovery, UncertainTool), in this
+        host's commands: only the steps it asks."""
+        recovery = int(s.get("Recovery", 0))
+        steps = ["`plc host clear`"] if int(s.get("FaultReason", 0)) else []
+        if recovery & RECOVERY_HOME:
+            steps.append("`plc host home` (home the changer)")
+        if recovery & RECOVERY_CONFIRM:
+            steps.append("confirm the tool: " + self.confirm_advice(s))
+        if not recovery & (RECOVERY_HOME | RECOVERY_CONFIRM):
+            return "the PLC asks no recovery (nothing uncertain)" + (f": {steps[0]}" if steps else "")
+        return "recovery the PLC asks: " + ", then ".join(steps)
 
     def confirm_advice(self, s: dict) -> str:
         """What the operator does to confirm the tool in the spindle (Recovery asks to confirm)."""
