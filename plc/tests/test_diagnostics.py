@@ -251,6 +251,18 @@ def test_missing_end_var():
     assert (4, 1, "expected END_VAR to close VAR opened at 2:1") in errs
 
 
+
+def test_a_syntax_error_is_reported_once_and_the_other_pous_are_still_checked():
+    # issue 27: after one syntax error a cascade error, and the semantic errors elsewhere were the question
+    src = ("FUNCTION_BLOCK FB_A\nVAR x : INT END_VAR\nx := 1;\nEND_FUNCTION_BLOCK\n\n"
+           "FUNCTION_BLOCK FB_B\nVAR y : INT; END_VAR\ny := undefined_thing;\nEND_FUNCTION_BLOCK\n\n"
+           "PROGRAM Main\nVAR z : INT; END_VAR\nz := (1 + 2;\nz := nosuch;\nEND_PROGRAM\n")
+    assert errors(src) == [(2, 13, "expected ';' after the declaration, found 'END_VAR'"),
+                           (8, 6, "undeclared variable 'undefined_thing'"),
+                           (13, 12, "expected ')' to close the parenthesis, found ';'"),
+                           (14, 6, "undeclared variable 'nosuch'")]
+
+
 # ================================================================ portability warnings
 
 def pw(src: str, **kw):

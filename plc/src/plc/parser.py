@@ -366,6 +366,8 @@ class Parser:
             try:
                 decls.extend(self.var_decl(section, constant, retain))
             except ParseError:
+                if self.at_kw("END_VAR"):       # e.g. `x : INT END_VAR`: the block ends here, nothing to skip
+                    continue
                 self.sync(("END_VAR",))
                 self.ensure_progress(before)
         self.next()
@@ -392,7 +394,10 @@ class Parser:
         if self.tok.kind == "IDENT" and self.tok.value in ("R_EDGE", "F_EDGE"):
             edge = self.next().value
         init = self.initializer() if self.accept_sym(":=") else None
-        self.expect_sym(";", "after the declaration")
+        if self.at_kw("END_VAR"):           # `x : INT END_VAR`: reported, and x is declared (no cascade)
+            self.fail(f"expected ';' after the declaration, found {self.describe(self.tok)}")
+        else:
+            self.expect_sym(";", "after the declaration")
         return [A.VarDecl(n.pos, n.value, n.text, spec, init, location, section, constant, retain, edge)
                 for n in names]
 
