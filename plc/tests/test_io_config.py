@@ -103,7 +103,8 @@ BAD = [
     ('[[io.device]]\ntcp = "127.0.0.1"\ndiscrete_inputs = [{ address = 0, count = 8, to = "%IX49.0" }]\n',
      ":3:20: error: [[io.device]] 1: discrete_inputs %IX49.0..%IX49.7 covers %IX49.7, the runtime's SimulatedPlant"),
     ('[[io.device]]\ntcp = "127.0.0.1"\ndiscrete_inputs = [{ address = 0, count = 48, to = "%IX0.0" }]\n\n'
-     '[[io.device]]\ntcp = "127.0.0.2"\nstatus_input = "%IX5.0"\ncoils = [{ address = 0, count = 8, from = "%QX2.0" }]\n',
+     '[[io.device]]\ntcp = "127.0.0.2"\nstatus_input = "%IX5.0"\n'
+     'coils = [{ address = 0, count = 8, from = "%QX2.0" }]\n',
      ":7:1: error: [[io.device]] 2: status_input %IX5.0 lies in discrete_inputs of device 1"),
     ('[[io.device]]\nrtu = "/dev/null"\nunit = 1\ndiscrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n\n'
      '[[io.device]]\nrtu = "/dev/null"\nunit = 1\ncoils = [{ address = 0, count = 8, from = "%QX2.0" }]\n',

@@ -129,7 +129,8 @@ def test_an_ambiguous_tail_is_refused_with_the_variables_it_names(binary, tmp_pa
         assert monitor_cli.main(["--socket", str(plc.sock), "read", "count"]) == 1
         err = capsys.readouterr().err
         assert "'count' names more than one variable" in err, err
-        assert err.rstrip().endswith("it names 2: CONFIG0.RES0.INST0.COUNTER.COUNT, CONFIG0.RES0.INST0.SPARE.COUNT"), err
+        assert err.rstrip().endswith("it names 2: CONFIG0.RES0.INST0.COUNTER.COUNT, "
+                                     "CONFIG0.RES0.INST0.SPARE.COUNT"), err
         assert monitor_cli.main(["--socket", str(plc.sock), "read", "INST0.SPARE.COUNT"]) == 0
 
 
