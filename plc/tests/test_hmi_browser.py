@@ -200,10 +200,156 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
         wait_page(b, lambda b: b.find_elements(By.CSS_SELECTOR, row), 10, "the row")
         b.find_element(By.CSS_SELECTOR, row + " input.val").send_keys("FALSE")
         b.find_element(By.CSS_SELECTOR, row + " button[data-action=force]").click()
-        wait_page(b, lambda b: "refused" in text(b, "message"), 10, "force refused")
+        wait_page(b, lambda b: "refused" in text(b, "watch-message"), 10, "force refused in the watch panel")
         with Monitor(plant["sock"], timeout=5 * h.SLOW) as m:
             assert m.forces() == []
             assert m.read("%IX49.7")["CONFIG0.RES0.ATC.SIMULATEDPLANT"] is True
         assert text(b, "fault") == "none"
     finally:
         b.quit()
+
+
+def unlocked_page(url: str):
+    b = browser()
+    b.get(url + "/")
+    wait_page(b, lambda b: text(b, "plc-link") == "connected", 10, "the page to reach the PLC")
+    b.find_element(By.ID, "token").clear()
+    b.find_element(By.ID, "token").send_keys(TOKEN)
+    b.find_element(By.ID, "token-set").click()
+    wait_page(b, lambda b: "unlocked" in text(b, "token-state"), 10, "the token accepted")
+    return b
+
+
+def page_command(b, button: str, expect: str, timeout: float = 60) -> str:
+    """Click a command button; the page's answer once it is no longer 'sent'."""
+    b.execute_script("document.getElementById('message').textContent = ''")
+    b.find_element(By.ID, button).click()
+    wait_page(b, lambda b: text(b, "message") and not text(b, "message").endswith(": sent"), timeout * h.SLOW,
+              f"the answer to {button}")
+    answer = text(b, "message")
+    assert re.search(expect, answer), f"{button}: {answer!r} (expected {expect!r})"
+    return answer
+
+
+def host_session(port: int) -> tuple[Session, ModbusClient]:
+    client = ModbusClient("127.0.0.1", port, timeout=5 * h.SLOW)
+    client.connect()
+    return Session(load_map(REPO / "modbus_map" / "map.toml"), client, say=lambda _t: None,
+                   timeouts=Timeouts(request=60 * h.SLOW)), client
+
+
+def test_go_to_pocket_and_the_recovery_steps_from_the_page_with_a_tool_in_the_spindle(plant):
+    """With T3 in the spindle, "+1 pocket" and "go to pocket 5" end with the carousel at the pocket the page named
+    (the positioner's own target shown on the way, no other), tool 3 still in the spindle; a pocket that is not on
+    the carousel is refused on the page with the PLC's reason. Then a T5 M6 aborted while Put Tool has the collet
+    open: the page shows the recovery still asked after the clear, homes from the page, and confirms the tool the
+    simulated spindle holds (typed by the operator); the recovery ends and the page shows that tool."""
+    session, client = host_session(plant["rt"].port)
+    tags = session.tags
+    b = unlocked_page(plant["url"])
+    try:
+        session.start()
+        if tags.get("FaultReason"):
+            assert session.clear().ok
+        if int(tags.get("ToolInSpindle")) != 3:
+            assert session.prepare(3, 3).ok and session.change().ok
+        session.stop()
+        wait_page(b, lambda b: text(b, "spindle-tool") == "T3", 10, "T3 in the spindle on the page")
+        b.execute_script(WATCH_FIELDS)
+
+        current = int(text(b, "current-pocket"))
+        nxt = current % 6 + 1
+        answer = page_command(b, "cmd-plus", rf"go to pocket {nxt}: pocket {nxt} at the change position")
+        s = tags.read("CurrentPocket", "ToolInSpindle", "CarouselTarget", "GotoAnswer")
+        assert s["CurrentPocket"] == nxt and s["ToolInSpindle"] == 3 and s["CarouselTarget"] == 0, (answer, s)
+        wait_page(b, lambda b: text(b, "current-pocket") == str(nxt), 10, f"pocket {nxt} on the page")
+        seen = [tuple(v) for v in b.execute_script("return window.__atcSeen;")]
+        targets = {v[2] for v in seen}
+        assert targets <= {"-", str(nxt)}, f"+1 pocket: the page showed targets {targets}"
+        assert str(nxt) in targets or nxt == current, f"the positioner's target {nxt} was shown: {seen}"
+
+        b.execute_script(WATCH_FIELDS)
+        goal = 5 if nxt != 5 else 2
+        b.find_element(By.ID, "goto-pocket").clear()
+        b.find_element(By.ID, "goto-pocket").send_keys(str(goal))
+        page_command(b, "cmd-goto", rf"go to pocket {goal}: pocket {goal} at the change position")
+        assert tags.get("CurrentPocket") == goal and tags.get("ToolInSpindle") == 3
+        wait_page(b, lambda b: text(b, "current-pocket") == str(goal), 10, f"pocket {goal} on the page")
+        targets = {v[2] for v in b.execute_script("return window.__atcSeen;")}
+        assert targets == {"-", str(goal)}, f"go to pocket {goal}: the page showed targets {targets}"
+        assert b.find_element(By.CSS_SELECTOR, ".pocket.current").get_attribute("data-pocket") == str(goal)
+
+        b.find_element(By.ID, "goto-pocket").clear()
+        b.find_element(By.ID, "goto-pocket").send_keys("9")
+        page_command(b, "cmd-goto", r"the PLC refused: pocket 9 is not on the carousel \(1\.\.6\)")
+        assert tags.get("CurrentPocket") == goal
+
+        # --- T5 M6 aborted at Put Tool step 16 (collet open): this test is the host's mailbox and leaves that
+        # step's move unanswered, then aborts as a second host would (test_host_system does the same)
+        tags.write(MbxHostActive=True)
+        session, client2 = host_session(plant["rt"].port)
+        result = {}
+
+        def host():
+            session.start()
+            result["prepare"] = session.prepare(5, 5)
+            result["change"] = session.change()
+
+        t = threading.Thread(target=host)
+        t.start()
+        try:
+            deadline = time.monotonic() + 120 * h.SLOW
+            while time.monotonic() < deadline:
+                s = tags.read("SeqKind", "SeqStep", "MbxRequestPending", "MbxRequestId", "MbxOpcode", "MbxAxisMask",
+                              "MbxX", "MbxY", "MbxZ")
+                if s["SeqKind"] == 3 and s["SeqStep"] == 16:
+                    break
+                if s["MbxRequestPending"]:
+                    if s["MbxOpcode"] == 1:          # MOVEABS: the host is where it was asked to go
+                        tags.write(**{f"HostPos{a}": round(s[f"Mbx{a}"] / 100) for i, a in enumerate("XYZ")
+                                      if s["MbxAxisMask"] & (1 << i)})
+                    tags.write(MbxAnswerResult=1)
+                    tags.write(MbxAnswerId=s["MbxRequestId"])
+                time.sleep(0.005)
+            else:
+                raise AssertionError(f"Put Tool never reached step 16: {tags.read('FaultReason', 'SeqKind', 'SeqStep')}")
+            tags.write(EmcReason=8)
+            tags.write(EmcAbort=True)
+            h.wait_until(lambda: tags.get("EmcAbortAck"), 30 * h.SLOW, "emc-abort-ack")
+            tags.write(EmcAbort=False)
+            t.join(60 * h.SLOW)
+            assert not t.is_alive(), "the aborted M6 did not end"
+        finally:
+            tags.write(MbxHostActive=False)
+            session.stop()
+            client2.close()
+        assert not result["change"].ok, result
+        s = tags.read("FaultReason", "Recovery", "UncertainTool")
+        assert s["FaultReason"] == -103 and s["Recovery"] == 3 and s["UncertainTool"] == 3, s
+
+        # --- the recovery, from the page only
+        wait_page(b, lambda b: text(b, "fault").startswith("-103"), 10, "the interrupted change on the page")
+        page_command(b, "cmd-clear", r"clear: no fault")
+        wait_page(b, lambda b: text(b, "fault") == "none", 10, "the fault cleared")
+        assert text(b, "recovery").startswith("pending: home the changer"), text(b, "recovery")
+        assert "pending" in b.find_element(By.ID, "recovery-box").get_attribute("class")
+        b.find_element(By.ID, "goto-pocket").clear()
+        b.find_element(By.ID, "goto-pocket").send_keys("1")
+        page_command(b, "cmd-goto", r"the PLC refused: an interrupted change left a recovery to do")
+        page_command(b, "cmd-home", r"home: carousel homed.*tool 3 is in the spindle or in its pocket")
+        wait_page(b, lambda b: text(b, "recovery").startswith("pending: confirm the tool: T3"), 10,
+                  "the confirmation asked on the page")
+        assert b.find_element(By.ID, "cmd-confirm").is_displayed()
+        seen_tool = int(tags.get("SimSpindleTool"))           # what the operator sees in the spindle
+        assert seen_tool in (0, 3), seen_tool
+        b.find_element(By.ID, "confirm-tool").send_keys(str(seen_tool))
+        page_command(b, "cmd-confirm", rf"confirm: tool {seen_tool} in the spindle")
+        wait_page(b, lambda b: text(b, "recovery") == "none", 10, "no recovery left on the page")
+        wait_page(b, lambda b: text(b, "spindle-tool") == f"T{seen_tool}", 10, "the confirmed tool on the page")
+        s = tags.read("Recovery", "ToolInSpindle", "FaultReason")
+        assert s == {"Recovery": 0, "ToolInSpindle": seen_tool, "FaultReason": 0}, s
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        b.save_screenshot(str(ARTIFACTS / "hmi-recovery.png"))
+    finally:
+        b.quit()
+        client.close()

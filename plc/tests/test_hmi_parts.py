@@ -163,3 +163,17 @@ def test_the_run_configuration_reads_the_monitor_section(tmp_path):
     f.write_text('[monitor]\nsocket = 3\n')
     with pytest.raises(runtime.ConfigError, match=r"\[monitor\] socket: expected a file name"):
         runtime.load_config(f)
+
+
+def test_the_page_knows_the_inputs_the_simulation_leaves_alone_its_fault_lines_and_the_plcs_time():
+    from atc.hmi import server
+    info = mapinfo.load(REPO / "modbus_map" / "map.toml")
+    free = server.not_simulated(info)
+    assert {"EStopOk", "GuardDoorClosed", "AirPressureOk", "SpindleStopped"} <= set(free)
+    assert not {"SimulatedPlant", "ForcesActive", "IoModule1Lost"} & set(free), "the runtime sets these in sim too"
+    assert set(server.fault_lines(info)) >= {"ToolchangerFault", "IoModule1Lost"}
+    assert "ClearFault" not in server.fault_lines(info)
+    hub = server.Hub(server.Options(), info, None, 6)
+    assert hub.plc_time({"ScanCount": 5}) == {}, "no diagnostic block (OpenPLC): no PLC time"
+    hub.diag = {"scan_count": 65530, "base_tick_us": 4000}
+    assert hub.plc_time({"ScanCount": 2}) == {"plc_scan": 65538, "plc_s": 262.152}, "ScanCount wrapped since"

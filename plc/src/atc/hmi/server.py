@@ -6,9 +6,10 @@ toolchanger part needs only the map, so it works against an OpenPLC runtime serv
 diagnostic block and the watch/force panel need our runtime (its monitoring channel) and are left out
 quietly when absent.
 
-Commands (home, +/-1 pocket, go to pocket, clear fault) are requests through the map's host signals: the PLC
-decides, and refuses what its interlocks and its state do not allow (the answer says why).  Go to pocket is a
-prepare of the tool in that pocket (the PLC pre-positions the carousel); +/-1 is a go-to of the neighbour.
+Commands (home, +/-1 pocket, go to pocket, clear fault, confirm the tool) are requests through the map's host
+signals: the PLC decides, and refuses what its interlocks and its state do not allow (the answer says why).  Go
+to pocket is the PLC's go-to (GotoRequest/GotoPocket, answered in GotoAnswer): the carousel turns to that pocket
+whatever the spindle holds; +/-1 is a go-to of the neighbour of the pocket at the change position.
 Every command, write and force needs the token (the monitor's, var/monitor.token); without it the page is
 read-only.  The alarm history is a JSON-lines file (default var/alarms.jsonl) and survives restarts.
 
@@ -32,11 +33,13 @@ from plc.modbus import LinkError, ModbusClient, ModbusException
 from plc.project import add_view_options
 
 from plc import cliargs, runtime
+from plc.io_config import RUNTIME_INPUTS
 
 from .. import project
 from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
+from ..runsetup import SIM_FLAG_SIGNAL
 from . import mapinfo
 
 STATIC = Path(__file__).parent / "static"
@@ -46,6 +49,19 @@ POST_BURST = 40.0
 WATCH_MAX = 32
 BIT_GAP = 512                    # one coil and one discrete-input read per poll (a few hundred bits each)
 COUNTER_PUSH_S = 0.25            # pushes when only counters and heartbeats moved
+GOTO_TIMEOUT_S = 60.0            # a go-to's turn until its answer
+# GotoAnswer (modbus_map/map.toml states) -> what the operator reads; {p} the pocket, {n} the pockets
+GOTO_TEXT = {
+    "Done": "pocket {p} at the change position",
+    "Stopped": "the turn to pocket {p} was stopped (an abort, a fault or the machine interlocks: door, air, spindle)",
+    "RefusedBusy": "the changer is busy (a change, a prepare, homing or a turn runs or is asked)",
+    "RefusedFaulted": "a fault is latched: clear it first",
+    "RefusedNotHomed": "the carousel is not homed: home it first",
+    "RefusedRecovery": "an interrupted change left a recovery to do first (home the changer, confirm the tool)",
+    "RefusedInterlock": "the interlocks forbid turning (arm out, collet open, or guard door, air, spindle)",
+    "RefusedBadPocket": "pocket {p} is not on the carousel (1..{n})",
+    "RefusedNoCarousel": "this machine has fixed pockets (a rack): there is no carousel to turn",
+}
 
 
 @dataclass
@@ -102,17 +118,30 @@ class Hub:
         tmp.write_text("".join(json.dumps(a) + "\n" for a in self.alarms[-ALARM_KEEP:]), encoding="utf-8")
         tmp.replace(self.opts.alarms)
 
-    def _fault_changed(self, old: int, new: int) -> None:
+    def plc_time(self, values: dict) -> dict:
+        """The PLC's own time of this poll, when it gives one: our runtime's diagnostic block counts scans (32 bit)
+        and their period; the map's ScanCount (16 bit, every poll) says how many scans ran since that block was
+        read. OpenPLC gives none: {}."""
+        d = self.diag
+        if not d or "scan_count" not in d or "ScanCount" not in values or not d.get("base_tick_us"):
+            return {}
+        scan = d["scan_count"] + (int(values["ScanCount"]) - d["scan_count"]) % 65536
+        return {"plc_scan": scan, "plc_s": round(scan * d["base_tick_us"] / 1e6, 3)}
+
+    def _fault_changed(self, old: int, new: int, values: dict | None = None) -> None:
         now = time.time()
+        stamp = self.plc_time(values or {})
         if old:
             for a in reversed(self.alarms):
                 if a["code"] == old and not a.get("cleared"):
                     a["cleared"] = now
+                    if stamp:
+                        a["cleared_plc_s"] = stamp["plc_s"]
                     break
         if new:
             r = self.info.reason(new)
             self.alarms.append({"code": new, "name": r["name"], "text": r["text"], "cause": r.get("cause", ""),
-                                "remedy": r.get("remedy", ""), "raised": now})
+                                "remedy": r.get("remedy", ""), "raised": now, **stamp})
         self._save_alarms()
 
     # ------------------------------------------------------------- state --
@@ -126,7 +155,7 @@ class Hub:
         new_fault = int(values.get("FaultReason", 0) or 0)
         if self.values and old_fault != new_fault or (not self.values and new_fault and not any(
                 a["code"] == new_fault and not a.get("cleared") for a in self.alarms)):
-            self._fault_changed(old_fault if self.values else 0, new_fault)
+            self._fault_changed(old_fault if self.values else 0, new_fault, values)
         for name in (self.info.rmap.link.plc_alive, "PlcHeartbeat", self.info.rmap.link.host_heartbeat):
             if name in values and self._beats.get(name, (None,))[0] != values[name]:
                 self._beats[name] = (values[name], now)
@@ -157,6 +186,22 @@ class Hub:
 
     def token_ok(self, given: str | None) -> bool:
         return bool(self.token) and given is not None and hmac.compare_digest(given.encode(), self.token.encode())
+
+
+def not_simulated(info: mapinfo.MapInfo) -> list[str]:
+    """The machine's inputs that nothing drives while the simulated plant runs (the plant models stand in for them
+    inside the program; their wires read 0): every input but the simulation flag and the runtime's own inputs
+    (forces active, remote I/O module lost)."""
+    return [s.name for s in info.rmap.signals if s.direction == "input" and s.type == "BOOL"
+            and s.name != SIM_FLAG_SIGNAL and not (s.table == "discrete_input" and s.address in RUNTIME_INPUTS)
+            and not s.name.startswith("IoModule")]
+
+
+def fault_lines(info: mapinfo.MapInfo) -> list[str]:
+    """BOOL lines whose TRUE is a fault (drawn as one when active): the iov2 fault lines, a lost remote I/O
+    module."""
+    return [s.name for s in info.rmap.signals if s.type == "BOOL"
+            and s.name.endswith(("Fault", "Faulted", "Lost")) and not s.name.startswith("Clear")]
 
 
 def _pockets(info: mapinfo.MapInfo, given: int | None) -> int:
@@ -278,37 +323,67 @@ def run_command(hub: Hub, cmd: str, arg) -> dict:
     session = Session(rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60.0))
     try:
         session = Session(rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60.0))
-        if cmd not in ("home", "clear", "goto", "step"):
-            return {"ok": False, "error": f"unknown command '{cmd}' (home, step, goto, clear)"}
+        if cmd not in ("home", "clear", "goto", "step", "confirm"):
+            return {"ok": False, "error": f"unknown command '{cmd}' (home, step, goto, clear, confirm)"}
+        if cmd == "step" and arg not in (1, -1):
+            return {"ok": False, "error": "step is +1 or -1"}
+        if cmd in ("goto", "confirm") and (not isinstance(arg, int) or isinstance(arg, bool)):
+            return {"ok": False, "error": f"{cmd} needs a number"}
+        if cmd in ("goto", "step") and not session.tags.has("GotoRequest"):
+            return {"ok": False, "error": "this PLC's register map has no GotoRequest: the page cannot turn the carousel"}
         session.start()            # the host heartbeat while the command runs: the PLC serves a live host only
         if cmd == "home":
             outcome = session.home()
         elif cmd == "clear":
             outcome = session.clear()
-        elif cmd in ("goto", "step"):
-            current = int(session.tags.get("CurrentPocket"))
+        elif cmd == "confirm":
+            outcome = session.confirm(arg)
+        else:
             if cmd == "step":
-                if arg not in (1, -1):
-                    return {"ok": False, "error": "step is +1 or -1"}
-                pocket = (current - 1 + arg) % hub.pockets + 1
-            else:
-                if not isinstance(arg, int) or isinstance(arg, bool) or not 1 <= arg <= hub.pockets:
-                    return {"ok": False, "error": f"go to pocket 1..{hub.pockets}"}
-                pocket = arg
-            tool_sig = f"PocketTool{pocket}"
-            tool = int(session.tags.get(tool_sig)) if session.tags.has(tool_sig) else pocket
-            outcome = session.prepare(tool, pocket)
-            if outcome.ok:
-                s = session.poll()
-                if int(s.get("FaultReason", 0)):
-                    r = hub.info.reason(int(s["FaultReason"]))
-                    return {"ok": False, "error": f"the PLC refused: {r['name']}: {r['text']}"}
+                current = int(session.tags.get("CurrentPocket"))
+                if current < 1:
+                    return {"ok": False, "error": "the pocket at the change position is not known (the carousel "
+                            "turns or is not homed): +/-1 needs it; home, or go to a pocket by number"}
+                arg = (current - 1 + arg) % hub.pockets + 1
+            return goto(session, hub, arg)
         return {"ok": bool(outcome.ok), "text": outcome.text} if outcome.ok else {"ok": False, "error": outcome.text}
     except HostError as exc:
         return {"ok": False, "error": str(exc)}
     finally:
         session.stop()
         client.close()
+
+
+def goto(session: Session, hub: Hub, pocket: int) -> dict:
+    """The PLC's go-to: GotoPocket, a rising GotoRequest, then the answer the PLC wrote on that edge (proved by
+    two scans after the request: an answer read earlier may be the last request's) until the turn ends."""
+    tags = session.tags
+    tags.write(GotoRequest=False)
+    tags.write(GotoPocket=pocket)
+    scan0 = int(tags.get("ScanCount"))
+    tags.write(GotoRequest=True)
+    deadline = time.monotonic() + GOTO_TIMEOUT_S
+    try:
+        while True:
+            s = tags.read("GotoAnswer", "ScanCount", "CurrentPocket", "FaultReason")
+            answer = hub.info.state_name("GotoAnswer", s["GotoAnswer"])
+            if (int(s["ScanCount"]) - scan0) % 65536 >= 2 and answer != "Turning":
+                break
+            if time.monotonic() > deadline:
+                return {"ok": False, "error": f"go to pocket {pocket}: no answer from the PLC within "
+                        f"{GOTO_TIMEOUT_S:.0f} s (GotoAnswer {answer})"}
+            time.sleep(0.01)
+    finally:
+        tags.write(GotoRequest=False)
+    text = GOTO_TEXT.get(answer, f"GotoAnswer {answer}").format(p=pocket, n=hub.pockets)
+    if answer == "Done" and int(s["CurrentPocket"]) == pocket:
+        return {"ok": True, "text": f"go to pocket {pocket}: {text}"}
+    fault = int(s["FaultReason"])
+    if fault:
+        r = hub.info.reason(fault)
+        text += f"; fault {fault} {r['name']}: {r['text']}"
+    return {"ok": False, "error": f"go to pocket {pocket}: the PLC refused: {text}" if answer.startswith("Refused")
+            else f"go to pocket {pocket}: {text}"}
 
 
 # ---------------------------------------------------------------- web app
@@ -345,6 +420,7 @@ def make_app(hub: Hub):
                  "description": s.description, "states": {str(k): v for k, v in hub.info.states.get(s.name, {}).items()}}
                 for s in hub.info.rmap.signals]
         return web.json_response({"signals": sigs, "pockets": hub.pockets, "token_required": True,
+                                  "not_simulated": not_simulated(hub.info), "fault_lines": fault_lines(hub.info),
                                   "writes_possible": bool(hub.token), "monitor": hub.opts.monitor_socket is not None,
                                   "reasons": {str(k): v for k, v in hub.info.reasons.items()}})
 
@@ -361,7 +437,7 @@ def make_app(hub: Hub):
             return bad
         data = await body_of(request)
         if data is None or not isinstance(data.get("cmd"), str):
-            return refuse(400, 'expected JSON {"cmd": "home"|"step"|"goto"|"clear", "arg": ...}')
+            return refuse(400, 'expected JSON {"cmd": "home"|"step"|"goto"|"clear"|"confirm", "arg": ...}')
         if command_lock.locked():
             return refuse(409, "another command is running")
         async with command_lock:
