@@ -102,6 +102,44 @@ def test_an_invert_code_list_shorter_than_the_code_inputs_is_an_error_naming_bot
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.parametrize("edit,key,message", [
+    (('stop_delay_ms = 0 ', 'centre_on_code = true\nstop_delay_ms = 0 '), "centre_on_code =",
+     ('[carousel] centre_on_code: only for the code modes without a pocket input (home+code, code): with '
+      'inputs = "home+pocket"')),
+    (('code_between = "nearest"', 'code_between = "nearest"\ncode_window_pct = 10'), "code_window_pct =",
+     '[simulation] code_window_pct: applies to code_between = "zero"'),
+    (('inputs = "home+pocket" ', 'inputs = "code" '), None, None),
+])
+def test_centring_and_the_simulated_code_disc_are_checked(tmp_path, edit, key, message):
+    text = CONFIG.read_text()
+    assert edit[0] in text, edit[0]
+    bad = text.replace(edit[0], edit[1], 1)
+    if key is None:          # a code-only carousel with a gap disc checked as valid-only: code 0 would fault
+        bad = bad.replace('code_check = "not-controlled"', 'code_check = "valid-only"').replace(
+            'code_between = "nearest"', 'code_between = "zero"')
+        key, message = "code_between =", '[simulation] code_between = "zero": code_check = "valid-only" faults'
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(bad)
+    proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
+    assert proc.returncode == 1, proc.stderr
+    assert f"{cfg}:{line_of(bad, key)}: error: {message}" in proc.stderr, proc.stderr
+
+
+def test_a_carousel_that_cannot_stop_centred_is_a_warning_with_the_numbers(tmp_path):
+    """Code only without centring on a sector disc: it stops when the code settles, 38 ms before the centre at
+    100 ms a pitch (50 ms half a pitch, 12 ms debounce), outside the +-20 ms window; the check passes and says so."""
+    text = CONFIG.read_text().replace('inputs = "home+pocket" ', 'inputs = "code" ').replace(
+        'stop_delay_ms = 0 ', 'centre_on_code = false\nstop_delay_ms = 0 ')
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(text)
+    proc = machine("check", "--config", str(cfg), "--out", str(tmp_path / "x.st"))
+    assert proc.returncode == 0, proc.stderr
+    assert (f"{cfg}:{line_of(text, 'pocket_time_ms =')}: warning: [simulation] the simulated carousel stops about "
+            "38 ms before the pocket centre") in proc.stderr, proc.stderr
+    assert "outside the +-20 ms where the arm meets the holder" in proc.stderr
+    assert "set centre_on_code = true" in proc.stderr
+
+
 RACK = ROOT / "machines" / "rack8" / "machine.toml"
 
 

@@ -105,6 +105,8 @@ def check_and_generate(config: Path, out: Path | None, write: bool, label: str |
         return 1 if ck.problems else 0
     if not ck.problems:
         check_sequences(ck, data, root, label or config.as_posix())
+    for d in ck.warnings if not ck.problems else []:
+        print(d.render(), file=sys.stderr)
     if ck.problems:
         if not write or any("tools =" not in d.message for d in ck.problems):
             report(ck)
@@ -123,8 +125,9 @@ def check_and_generate(config: Path, out: Path | None, write: bool, label: str |
             print(f"{rel}: error: out of date with {label}: run `plc machine generate`", file=sys.stderr)
         if not stale:
             places = "positions" if "rack" in data else "pockets"
+            warned = f"; {len(ck.warnings)} warning(s) above" if ck.warnings else ""
             print(f"plc machine check: {label}: ok ({pockets(data)} {places}; the register map and the sequences "
-                  f"agree; its {len(files)} generated files are up to date)", file=sys.stderr)
+                  f"agree; its {len(files)} generated files are up to date{warned})", file=sys.stderr)
         return 1 if stale else 0
     return write_all(root, files)
 

@@ -34,6 +34,11 @@ OUTPUTS = {"single-positive": "OutputsSinglePositive", "single-negative": "Outpu
            "separate": "OutputsSeparateDirections"}
 HOMING = {"none": "HomingNone", "positive": "HomingPositive", "negative": "HomingNegative",
           "first-pocket": "HomingFirstPocket"}
+# what a simulated code disc shows between the pockets' code windows ([simulation] code_between)
+CODE_BETWEEN = {"nearest": "the nearest pocket's code: the code changes at mid-pitch (a sector disc)",
+                "zero": "code 0 outside a window around each pocket centre (a gap disc; code_window_pct)"}
+SIM_SCAN_MS = 4          # the simulated task's interval (FB_AtcMachine.CycleTime)
+CODE_MODES_WITHOUT_POCKET = ("home+code", "code")
 CODE_CHECK = {"not-controlled": "CodeOrderNotControlled", "valid-only": "CodeValidOnly",
               "valid-and-zero": "CodeValidAndZero"}
 
@@ -43,6 +48,7 @@ class Checker:
     path: Path
     text: str
     problems: list[Diagnostic] = field(default_factory=list)
+    warnings: list[Diagnostic] = field(default_factory=list)
 
     def line_of(self, section: str, key: str | None = None) -> int:
         """Line of `key` inside `[section]` (or of the section header), 1 when not found."""
@@ -66,6 +72,11 @@ class Checker:
 
     def error(self, section: str, key: str | None, message: str) -> None:
         self.problem(self.line_of(section, key), message)
+
+    def warn(self, section: str, key: str | None, message: str) -> None:
+        """A warning at `key` of `[section]`: the machine works as described, but not as meant (say why)."""
+        self.warnings.append(Diagnostic("warning", Pos(str(self.path), self.line_of(section, key), 0), message,
+                                        layout=FILE_LINE))
 
 
 KINDS = {"carousel": "rotary toolchanger (the Logosol manual's carousel): [carousel] and [channels]",
@@ -103,12 +114,15 @@ SCHEMA = {
         "home_timeout_ms": (int, 0, 600000), "pocket_timeout_ms": (int, 0, 600000), "stop_delay_ms": (int, 0, 10000),
         "invert_home": (bool,), "invert_pocket": (bool,), "invert_on": (bool,), "invert_plus_dir": (bool,),
         "invert_minus_dir": (bool,), "invert_code": (list, bool), "pocket_codes": (list, int),
+        "centre_on_code": (bool,),
     },
     "rack": {"positions": (int, 1, 50), "x": (list, float), "y": (list, float), "grip_z": (float, -100000, 100000),
              "tolerance": (float, 0.001, 100)},
     "changer": {"brake_release_ms": (int, 0, 10000), "auto_home": (bool,), "tool_sensor": (bool,)},
     "simulation": {"pocket_time_ms": (int, 1, 10000), "coast_ms": (int, 0, 10000), "skew_scans": (int, 0, 100),
-                   "arm_travel_ms": (int, 1, 60000), "collet_ms": (int, 1, 60000), "brake_ms": (int, 0, 60000)},
+                   "arm_travel_ms": (int, 1, 60000), "collet_ms": (int, 1, 60000), "brake_ms": (int, 0, 60000),
+                   "sensor_window_pct": (int, 1, 49), "code_between": (CODE_BETWEEN,),
+                   "code_window_pct": (int, 1, 49)},
 }
 REQUIRED = {"carousel": ("pockets", "inputs", "outputs", "homing")}
 DEFAULT_SEQUENCES = "configs/sequences/sequences.toml"
@@ -267,7 +281,79 @@ def cross_checks(ck: Checker, data: dict) -> None:
     if car["outputs"].startswith("single") and car["homing"] == ("negative" if "positive" in car["outputs"]
                                                                  else "positive"):
         ck.error("carousel", "homing", "[carousel] homing: a single-direction carousel cannot home the other way")
+    check_simulation(ck, data)
     check_channels(ck, data)
+
+
+def centres_on_code(car: dict) -> bool:
+    """[carousel] centre_on_code, by default TRUE in the code modes without a pocket input."""
+    return car.get("centre_on_code", car["inputs"] in CODE_MODES_WITHOUT_POCKET)
+
+
+def code_between(data: dict) -> str:
+    return data.get("simulation", {}).get("code_between", "nearest")
+
+
+def sensor_window_ms(sim: dict) -> float:
+    """Half width of the simulated pocket/home sensor window, the tolerance where the arm meets a holder."""
+    return sim.get("pocket_time_ms", 100) * sim.get("sensor_window_pct", 20) / 100
+
+
+def code_window_ms(sim: dict) -> float:
+    return sim.get("pocket_time_ms", 100) * sim.get("code_window_pct", sim.get("sensor_window_pct", 20)) / 100
+
+
+def check_simulation(ck: Checker, data: dict) -> None:
+    """The centring settings and the simulated code disc; then where the simulated carousel stops: a warning
+    with the numbers when it stops outside the window where the arm meets the holder."""
+    car, sim = data["carousel"], data.get("simulation", {})
+    if car.get("centre_on_code") and car["inputs"] not in CODE_MODES_WITHOUT_POCKET:
+        ck.error("carousel", "centre_on_code", f"[carousel] centre_on_code: only for the code modes without a pocket "
+                 f"input ({', '.join(CODE_MODES_WITHOUT_POCKET)}): with inputs = \"{car['inputs']}\" the pocket input "
+                 "says where the centre is")
+    if "code_window_pct" in sim and code_between(data) != "zero":
+        ck.error("simulation", "code_window_pct", "[simulation] code_window_pct: applies to code_between = \"zero\" "
+                 "(a gap disc); with a sector disc each code spans its whole pitch")
+    if code_between(data) == "zero" and car.get("code_check") == "valid-only" and "code" in car["inputs"]:
+        ck.error("simulation", "code_between", "[simulation] code_between = \"zero\": code_check = \"valid-only\" "
+                 "faults on the code 0 between pockets (use \"nearest\", or code_check = \"valid-and-zero\")")
+    if ck.problems:
+        return
+    t = sim.get("pocket_time_ms", 100)
+    window = sensor_window_ms(sim)
+    delay, coast = car.get("stop_delay_ms", 0), sim.get("coast_ms", 0)
+    settle = car.get("debounce_scans", 3) * SIM_SCAN_MS
+    codes = car.get("pocket_codes", [])
+    if code_between(data) == "nearest":         # the bits that change from one pocket's code to the next
+        changes = [bin(a ^ b).count("1") for a, b in zip(codes, codes[1:] + codes[:1])]
+        region = t
+    else:                                       # from code 0 to the pocket's code
+        changes = [bin(c).count("1") for c in codes]
+        region = 2 * code_window_ms(sim)
+    skew = sim.get("skew_scans", 0) * SIM_SCAN_MS * (max(changes, default=1) - 1)
+    settle += skew                              # the code settles once its last bit changed
+    if "code" not in car["inputs"]:
+        arrival, how = -window, "at the pocket input's edge"
+    elif "pocket" in car["inputs"]:
+        arrival, how = max(-window, -region / 2 + settle), "at the pocket input's edge, with the code settled"
+    elif centres_on_code(car):
+        arrival, how = max(0.0, -region / 2 + settle), "centred on the code region"
+    else:
+        arrival, how = -region / 2 + settle, ("when the code settles after its region begins (centre_on_code = "
+                                              "false)")
+    offset = arrival + delay + coast
+    if abs(offset) <= window:
+        return
+    side = "past" if offset > 0 else "before"
+    fix = (f"lower stop_delay_ms ({delay}) or coast_ms ({coast})" if offset > 0 else
+           "set centre_on_code = true" if car["inputs"] in CODE_MODES_WITHOUT_POCKET else
+           f"raise stop_delay_ms to about {round(-arrival - coast)}")
+    ck.warn("simulation", "pocket_time_ms" if "pocket_time_ms" in sim else None,
+            f"[simulation] the simulated carousel stops about {abs(offset):.0f} ms {side} the pocket centre "
+            f"({how}, {arrival:+.0f} ms; stop_delay_ms {delay}, coast_ms {coast}), outside the +-{window:g} ms where "
+            f"the arm meets the holder (sensor_window_pct {sim.get('sensor_window_pct', 20)} of pocket_time_ms "
+            f"{t}): simulated changes crash the plant (a fault, -121..-127), and a machine whose pocket takes as "
+            f"long stops off centre too; {fix}")
 
 
 def check_channels(ck: Checker, data: dict) -> None:
@@ -412,6 +498,7 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
            f"Rotary.homeTimeout := {ms(car.get('home_timeout_ms', 25000))};",
            f"Rotary.pocketTimeout := {ms(car.get('pocket_timeout_ms', 10000))};",
            f"Rotary.stopDelay := {ms(car.get('stop_delay_ms', 0))};",
+           f"Rotary.centreOnCode := {st_bool(rack is None and centres_on_code(car))};",
            f"Rotary.invertHome := {st_bool(car.get('invert_home', False))};",
            f"Rotary.invertPocket := {st_bool(car.get('invert_pocket', False))};",
            f"Rotary.invertOn := {st_bool(car.get('invert_on', False))};",
@@ -426,6 +513,9 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
             f"Channels.pocket := {lines.get('pocket', -1)};"]
     out += [f"Channels.{field_} := {map_channels.get(field_, -1)};" for field_ in MAP_CHANNELS]
     out += [f"Plant.pocketTime := {ms(sim.get('pocket_time_ms', 100))};",
+            f"Plant.window := {ms(max(1, round(sensor_window_ms(sim))))};",
+            f"Plant.codeGap := {st_bool(code_between(data) == 'zero')};",
+            f"Plant.codeWindow := {ms(max(1, round(code_window_ms(sim))))};",
             f"Plant.coastTime := {ms(sim.get('coast_ms', 0))};",
             f"Plant.skewScans := {sim.get('skew_scans', 0)};",
             f"ChangerPlant.pockets := {car['pockets']};",
@@ -465,5 +555,5 @@ def tool_table(data: dict) -> str:
 
 
 def report(ck: Checker) -> None:
-    for d in ck.problems:
+    for d in ck.problems + ck.warnings:
         print(d.render(), file=sys.stderr)
