@@ -257,7 +257,7 @@ def test_a_taken_port_is_exit_2_and_writes_nothing(tmp_path):
         state.mkdir()                               # the runtime alone: its folder exists, the file must not appear
         direct = h.Runtime(h.runtime_binary(), "--port", str(port), "--retain", str(state / "plc.retain"),
                            "--no-rt", raw=True)
-        rc = direct.proc.wait(30 * h.SLOW)
+        rc = direct.wait(30 * h.SLOW)                 # and its log to the end
         assert rc == 2, direct.log
         assert f"cannot listen on 127.0.0.1:{port}" in direct.log, direct.log
         assert list(state.iterdir()) == [], direct.log

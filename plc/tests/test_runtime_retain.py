@@ -235,7 +235,7 @@ def test_a_second_runtime_on_the_same_retain_file_stops_and_names_the_holder(bin
     try:
         h.wait_until(f.exists, 3, "the first save")
         second = h.Runtime(binary, "--no-rt", "--retain", str(f))
-        assert second.proc.wait(30 * h.SLOW) == 1, second.log
+        assert second.wait(30 * h.SLOW) == 1, second.log
         second.wait_for(rf"error: retain: .*plc\.retain is in use by another runtime \(pid {holder.proc.pid} "
                         r"holds .*plc\.retain\.lock\); give each runtime its own retain file")
         assert "listening" not in second.log                   # stopped before serving anything

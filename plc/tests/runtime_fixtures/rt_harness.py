@@ -174,6 +174,12 @@ class Runtime:
         self.wait_for(r"running ")
         return self
 
+    def wait(self, timeout: float) -> int:
+        """Wait for the runtime to exit by itself and for its last log lines; return its exit status."""
+        rc = self.proc.wait(timeout)
+        self._reader.join(5)
+        return rc
+
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> int:
         """Signal the runtime and wait for it; return its exit status."""
         if self.proc.poll() is None:
