@@ -167,6 +167,33 @@ def test_abort_and_status(plc):
     assert "acknowledged by the PLC" in out and "tool in spindle" in out
 
 
+def test_a_host_that_exits_normally_left_and_a_killed_one_lost_its_link(plc):
+    """Issue 27: the runtime's log said "host link lost" (a warning) every time `plc host` ended normally. A
+    clean exit writes its last heartbeat (65535) and the log says the host left; a killed host still loses its
+    link. Each waits for the line that proves the PLC saw the link end."""
+    def lines_after(offset: int, pattern: str, timeout: float = 30.0) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            text = plc.log.read_text(errors="replace")[offset:]
+            if re.search(pattern, text):
+                return text
+            assert time.monotonic() < deadline, f"no {pattern!r} in the log:\n{text[-3000:]}"
+            time.sleep(0.2)
+
+    offset = plc.log.stat().st_size
+    ok(plc.host("status"))
+    text = lines_after(offset, r"host left: its last heartbeat was 65535 \(a clean exit\)")
+    assert "host link lost" not in text, text
+    offset = plc.log.stat().st_size
+    victim = subprocess.Popen([sys.executable, "-m", "plc.cli", "host", "--port", str(plc.port)], cwd=REPO / "plc",
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines_after(offset, r"host link restored")
+    victim.send_signal(signal.SIGKILL)
+    victim.wait(10)
+    text = lines_after(offset, r"warning: host link lost: no heartbeat change from the host")
+    assert "host left" not in text, text
+
+
 def test_the_tool_in_the_spindle_survives_a_restart_of_the_plc(tmp_path):
     p = Plc(tmp_path)
     p.start()

@@ -40,6 +40,15 @@ REASON_CONFIRM_TOOL = -108               # a change refused until the tool in th
 REASON_CHANGE_INTERRUPTED = -103         # a Put/Get stopped part-way: Recovery says what became uncertain
 
 
+LEFT_BEAT = 0xFFFF                       # the heartbeat a host writes last when it exits cleanly (LinuxCNC's
+                                         # sawtooth stays in 0..1000)
+
+
+def next_beat(beat: int) -> int:
+    """The next host heartbeat: 0..65534, never LEFT_BEAT."""
+    return (beat + 1) % 0xFFFF
+
+
 class HostError(Exception):
     """A command could not complete (timeout, lost link, refused); the message says why."""
 
@@ -137,7 +146,7 @@ class Session:
         beat = (int(self.tags.get(name)) + 0x5A5A) & 0xFFFF       # far from any other host's counter
         deadline = time.monotonic() + max(4 * period, self.rmap.link.host_timeout_ms / 2000.0)
         while time.monotonic() < deadline:
-            beat = (beat + 1) & 0xFFFF
+            beat = next_beat(beat)
             self.tags.write(**{name: beat})
             time.sleep(period / 4)
             if int(self.tags.get(name)) != beat:
@@ -175,15 +184,21 @@ class Session:
             self.mailbox = mailbox
 
     def stop(self) -> None:
+        """End the heartbeat; a clean exit writes LEFT_BEAT last (a running host never writes it), so the PLC's log
+        says the host left rather than that its link was lost."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+            try:
+                self.tags.write(**{self.rmap.link.host_heartbeat: LEFT_BEAT})
+            except Exception:                # noqa: BLE001  the link may be gone already: nothing to tell then
+                pass
 
     def _heartbeat(self) -> None:
         period = self.rmap.link.host_heartbeat_period_ms / 1000.0 / 2
         name = self.rmap.link.host_heartbeat
         while not self._stop.wait(period):
-            self._beat = (self._beat + 1) & 0xFFFF
+            self._beat = next_beat(self._beat)
             try:
                 self.tags.write(**{name: self._beat})
             except Exception as exc:          # reported by the next poll of the command loop

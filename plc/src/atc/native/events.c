@@ -17,7 +17,7 @@
  *   abort from the host: reason 8 TASK_ABORT
  *   E-stop: chain opened / released
  *   changer IDLE -> HOMING; carousel homed at pocket 1
- *   host link lost / restored
+ *   host link lost / restored; host left (its last heartbeat 65535: a clean exit)
  *   sequence PUT started / ended
  *
  * A signal the description lacks is simply not watched (an older map, or
@@ -43,14 +43,15 @@ enum role {
     R_TOOL_IN_SPINDLE, R_CHANGER_STATE, R_FAULT_REASON, R_TOOL_CHANGE, R_TOOL_CHANGED, R_TOOL_PREPARE,
     R_TOOL_PREPARED, R_PREP_NUMBER, R_PREP_POCKET, R_TOOL_NUMBER, R_EMC_ABORT, R_EMC_REASON, R_ESTOP_OK,
     R_HOST_LINK_OK, R_CAROUSEL_HOMED, R_CURRENT_POCKET, R_SEQ_KIND, R_IOV_STATE, R_SIMULATED_PLANT,
-    R_SIM_ESTOP, R_RESTART_FIT, R_POCKET_COUNT, R_POCKET_TOOL1, R_UNCERTAIN_TOOL, R_ESTOP_CLOSED, R_COUNT
+    R_SIM_ESTOP, R_RESTART_FIT, R_POCKET_COUNT, R_POCKET_TOOL1, R_UNCERTAIN_TOOL, R_HOST_HEARTBEAT, R_ESTOP_CLOSED,
+    R_COUNT
 };
 
 static const char *const role_signal[R_COUNT] = {
     "ToolInSpindle", "ChangerState", "FaultReason", "ToolChange", "ToolChanged", "ToolPrepare",
     "ToolPrepared", "ToolPrepNumber", "ToolPrepPocket", "ToolNumber", "EmcAbort", "EmcReason", "EStopOk",
     "HostLinkOk", "CarouselHomed", "CurrentPocket", "SeqKind", "IovState", "SimulatedPlant", "SimEStop",
-    "RestartFit", "PocketCount", "PocketTool1", "UncertainTool",
+    "RestartFit", "PocketCount", "PocketTool1", "UncertainTool", "HostHeartbeat",
     NULL,   /* derived: the E-stop chain as the application sees it */
 };
 
@@ -65,7 +66,8 @@ static const struct { int code; const char *name; } cnc_reasons[] = {
 #define EV_LINES_PER_S 20
 #define MAX_STATES 32
 #define MAX_REASONS 256
-#define MAX_POCKETS 50          /* PocketTool1..50: consecutive holding registers from PocketTool1 */
+#define MAX_POCKETS 50
+#define HOST_LEFT_BEAT 65535    /* the last heartbeat of a host that exits cleanly (atc.host.session.LEFT_BEAT) */          /* PocketTool1..50: consecutive holding registers from PocketTool1 */
 
 /* RestartFit bits: what the application's first scan changed to fit the retained data to the machine
  * (FB_AtcChanger, README, "Retained data on another machine") */
@@ -424,7 +426,10 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
         log_msg(log, LOG_WARN, "E-stop: the E-stop chain opened (carousel outputs off)");
     if (ROSE(R_ESTOP_CLOSED))
         log_msg(log, LOG_INFO, "E-stop released: the E-stop chain is closed");
-    if (FELL(R_HOST_LINK_OK))
+    /* A host that exits cleanly writes 65535 as its last heartbeat (a running one never does): it left. */
+    if (FELL(R_HOST_LINK_OK) && HAS(R_HOST_HEARTBEAT) && cur[R_HOST_HEARTBEAT] == HOST_LEFT_BEAT)
+        log_msg(log, LOG_INFO, "host left: its last heartbeat was %d (a clean exit)", HOST_LEFT_BEAT);
+    else if (FELL(R_HOST_LINK_OK))
         log_msg(log, LOG_WARN, "host link lost: no heartbeat change from the host");
     if (ROSE(R_HOST_LINK_OK))
         log_msg(log, LOG_INFO, "host link restored");
