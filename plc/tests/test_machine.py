@@ -140,6 +140,25 @@ def test_a_carousel_that_cannot_stop_centred_is_a_warning_with_the_numbers(tmp_p
     assert "set centre_on_code = true" in proc.stderr
 
 
+def test_another_machine_file_is_checked_with_the_register_map_as_its_run_would(tmp_path):
+    """Issue 27: `plc machine check --config FILE` said ok to a machine whose home input sits on the map's
+    ArmAtForward channel, which `plc run --machine` then refused. Now the map is checked with FILE's lines, the
+    error at FILE's line; a good file (another shipped machine) passes with the same checks."""
+    text = CONFIG.read_text()
+    assert "home = 17 " in text
+    bad = text.replace("home = 17 ", "home = 18 ", 1)
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(bad)
+    proc = machine("check", "--config", str(cfg))
+    assert proc.returncode == 1, proc.stderr
+    assert (f"{cfg}:{line_of(bad, 'home = 18')}:1: error: CarouselHome: discrete_input 18 is already taken by "
+            "ArmAtForward") in proc.stderr, proc.stderr
+    assert f"the carousel lines: {cfg} [channels]" in proc.stderr
+    good = machine("check", "--config", str(ROOT / "machines" / "carousel-50" / "machine.toml"))
+    assert good.returncode == 0, good.stderr
+    assert "the sequences' and the register map's with its lines" in good.stderr
+
+
 RACK = ROOT / "machines" / "rack8" / "machine.toml"
 
 

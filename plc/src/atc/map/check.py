@@ -284,8 +284,9 @@ def _check_overlaps(rmap: RegisterMap, diags: Diagnostics) -> None:
         for a in range(sig.address, sig.last + 1):
             other = used.get((sig.table, a))
             if other is not None:
-                fix = "move one of them (the carousel lines: machines/default/machine.toml [channels], then " \
-                      "`plc machine generate`)" if sig.origin or other.origin else None
+                line = sig.origin or other.origin
+                fix = f"move one of them (the carousel lines: {line.file} [channels], then `plc machine generate`)" \
+                    if line else None
                 diags.error(rmap.pos(sig, "address"), f"{sig.name}: {sig.table} {a} is already taken by "
                             f"{other.name} at {rmap.pos(other, 'address')}", fix)
                 break

@@ -45,6 +45,14 @@ def load_and_check(map_path: Path, diags: Diagnostics) -> Loaded | None:
     return Loaded(rmap, facts.enums)
 
 
+def check_with_machine(map_path: Path, described: Path, diags: Diagnostics) -> None:
+    """The map's checks with the carousel lines of another machine file (`plc machine check --config FILE`):
+    what a run of that machine checks of the map, without the generated files (those are its workspace's)."""
+    rmap = load(map_path, diags, described=described)
+    if rmap is not None:
+        check(rmap, st_facts(rmap.root / "st_src", rmap.root), diags)
+
+
 def _check_program_file(rmap: RegisterMap, diags: Diagnostics) -> None:
     path = rmap.root / rmap.program_file
     where = rmap.section_pos("map", "program_file")

@@ -241,8 +241,10 @@ def display(path: Path, root: Path) -> str:
         return str(path)
 
 
-def load(path: Path, diags: Diagnostics, root: Path | None = None) -> RegisterMap | None:
-    """Read map.toml and the reason code file it names; None when a file cannot be read at all."""
+def load(path: Path, diags: Diagnostics, root: Path | None = None,
+         described: Path | None = None) -> RegisterMap | None:
+    """Read map.toml and the reason code file it names; None when a file cannot be read at all. The carousel
+    lines come from the project's machine description, or from `described` when given (another machine file)."""
     path = Path(path)
     root = Path(root) if root is not None else where(path).parent.parent
     data, text = _read_toml(path, diags)
@@ -266,7 +268,8 @@ def load(path: Path, diags: Diagnostics, root: Path | None = None) -> RegisterMa
         sig = _load_signal(i, table, lines, diags)
         if sig is not None:
             rmap.signals.append(sig)
-    described = path.parent / rmap.machine if rmap.machine else rmap.root / project.description(rmap.root)
+    if described is None:
+        described = path.parent / rmap.machine if rmap.machine else rmap.root / project.description(rmap.root)
     if rmap.machine or described.is_file():
         _load_machine_lines(rmap, described, diags)
     reasons_file = data.get("map", {}).get("reason_codes", "reason_codes.toml")
