@@ -13,6 +13,7 @@ installs them); a browser that is present but fails is a failure.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -58,7 +59,14 @@ pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"{', '.join(MISSING)} not
 @pytest.fixture(scope="module")
 def plant(tmp_path_factory):
     """The application on our runtime, its monitor, and `plc hmi` in front of it."""
-    tmp = tmp_path_factory.mktemp("hmi")
+    with served_plant(tmp_path_factory.mktemp("hmi")) as served:
+        yield served
+
+
+@contextlib.contextmanager
+def served_plant(tmp: Path):
+    """The application on our runtime (simulated plant, monitor, token) and `plc hmi` in front of it, in `tmp`;
+    yields url, rt (the rt_harness.Runtime), sock and tmp; stops both at the end, the runtime checked clean."""
     result = driver.compile_sources([REPO / "st_src"], portability=False)
     assert result.ok
     (tmp / "program.c").write_text(result.c_text)
@@ -75,7 +83,13 @@ def plant(tmp_path_factory):
     line = hmi.stdout.readline()
     m = re.search(r"(http://127\.0\.0\.1:\d+)/", line)
     assert m, f"plc hmi did not start: {line}{hmi.stdout.read() if hmi.poll() is not None else ''}"
-    yield {"url": m.group(1), "rt": rt, "sock": sock, "tmp": tmp}
+    try:
+        yield {"url": m.group(1), "rt": rt, "sock": sock, "tmp": tmp}
+    except BaseException:            # a test that failed inside `with served_plant(...)`: leave nothing running
+        hmi.kill()
+        hmi.wait(10)
+        rt.kill()
+        raise
     hmi.send_signal(signal.SIGINT)
     try:
         hmi.wait(10 * h.SLOW)
