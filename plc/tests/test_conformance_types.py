@@ -19,6 +19,7 @@ SRC = r"""
 TYPE
     E_Mode : (Idle, Moving, Fault);
     E_Level : (Low, Medium, High) := Medium;
+    E_Gear : (Neutral, Forward) := E_Gear#Forward;   (* the initial value names the type being declared *)
     T_Pocket : INT (1..12);
     T_Percent : USINT (0..100);
     T_Tools : ARRAY[1..8] OF INT := [8(3)];
@@ -45,6 +46,7 @@ VAR
     mode : E_Mode;
     level : E_Level;
     explicit : E_Mode := E_Mode#Fault;
+    gear : E_Gear;
     isIdle, isNotFault, caseHit : BOOL;
     code : INT;
     next : E_Mode;
@@ -246,6 +248,7 @@ def test_enum_values_count_from_0_and_default_to_the_first(run):
 
 def test_enum_type_default_and_explicit_initial_value(run):
     assert v(run, "P_Enums.level") == 1             # E_Level := Medium
+    assert v(run, "P_Enums.gear") == 1              # E_Gear := E_Gear#Forward (the compiler recursed on it)
     assert v(run, "P_Enums.explicit") == 2
     assert v(run, "P_Enums.isNotFault") is False
     assert v(run, "P_Enums.caseHit") is True

@@ -397,6 +397,29 @@ def test_type_renaming_an_enumeration():
     assert pw("TYPE E_A : (One, Two); T_B : E_A; END_TYPE\n") == [("portability.type-alias", 1, 24)]
 
 
+def test_a_struct_member_of_a_type_declared_later_in_the_file():
+    # iec2c (OpenPLC's MATIEC) reads a file in order: "invalid specification in structure element declaration"
+    src = ("TYPE\n ST_Outer : STRUCT\n  inner : ST_Inner;\n  more : ARRAY[1..2] OF ST_Inner;\n END_STRUCT;\n"
+           " ST_Inner : STRUCT\n  a : INT;\n END_STRUCT;\n"
+           " ST_After : STRUCT\n  b : ST_Inner;\n END_STRUCT;\nEND_TYPE\n")
+    assert pw(src) == [("portability.type-order", 3, 3), ("portability.type-order", 4, 3)]
+
+
+def test_a_types_initial_value_that_two_enumerations_declare():
+    # iec2c: "Ambiguous enumerate value"; qualified (E_St#IDLE) or unique it is fine
+    src = "TYPE E_St : (IDLE, RUN) := IDLE; E_Mode : (IDLE, AUTO); E_Ok : (STOPPED) := STOPPED; END_TYPE\n"
+    assert pw(src) == [("portability.enum-qualify", 1, 28)]
+    assert pw("TYPE E_St : (IDLE, RUN) := E_St#IDLE; E_Mode : (IDLE, AUTO); END_TYPE\n") == []
+
+
+def test_sel_and_mux_of_enumeration_values():
+    # iec2c: "Unable to resolve which overloaded function 'SEL' is being invoked"; SEL of numbers is fine
+    src = ("TYPE E_A : (One, Two); END_TYPE\n" + prog("VAR a, b : E_A; g : BOOL; k : INT; n : INT; END_VAR",
+           "a := SEL(g, a, b);\nb := MUX(k, a, b);\nn := SEL(g, 1, 2);"))
+    found = pw(src)
+    assert [c for c, *_ in found] == ["portability.enum-select", "portability.enum-select"], found
+
+
 def test_inline_subrange_starts_at_0_in_matiec():
     assert pw(prog("VAR p : INT (3..10); q : INT (0..10); END_VAR", "p := 4;")) == \
         [("portability.subrange-default", 2, 5)]

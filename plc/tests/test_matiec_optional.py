@@ -27,6 +27,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 ST_SRC = REPO / "st_src"
+SRC = REPO / "plc" / "src"
 IEC_TESTS = REPO / "iec_tests"
 IEC2C_FLAGS = ["-f", "-l", "-p", "-r", "-R", "-a"]
 PROGRAM_PATH = "./st_files/program.st"
@@ -71,9 +72,10 @@ def _reference_compiler():
 
 
 def _st_files(*folders):
+    """The sources of the folders: ST, and the PLCopen XML our compiler translates (a ladder FB)."""
     files = []
     for folder in folders:
-        files.extend(sorted(folder.rglob("*.st")))
+        files.extend(sorted(p for p in folder.rglob("*") if p.suffix.lower() in (".st", ".xml")))
     return files
 
 
@@ -92,10 +94,10 @@ class CombinedSource:
         self.text = ""
         self.origins = []          # origins[n - 1] = (file label, line in that file) for combined line n
 
-    def add(self, label, text):
+    def add(self, label, text, first_line=1):
         if not text.endswith("\n"):
             text += "\n"
-        for number in range(1, text.count("\n") + 1):
+        for number in range(first_line, first_line + text.count("\n")):
             self.origins.append((label, number))
         self.text += text
 
@@ -111,11 +113,23 @@ class CombinedSource:
 
 
 def _combine(files, prelude=None):
+    """The files as one program the way `plc deploy openplc` joins them (atc.deploy: PLCopen XML translated to ST,
+    TYPEs first, each after the types it uses, then the POUs), each line remembering its file and line."""
+    from atc.deploy import order, split_items
+    from plc.diagnostics import Diagnostics
+    from plc.driver import SourceSet, load_user_file
     source = CombinedSource()
     if prelude:
         source.add("<stub test prelude>", prelude)
+    items = []
     for path in files:
-        source.add(str(path.relative_to(REPO)), path.read_text(encoding="utf-8"))
+        diags = Diagnostics()
+        name, text, _translation = load_user_file(path, diags, SourceSet())
+        assert text is not None and not diags.has_errors(), [d.render() for d in diags.sorted()]
+        items += [(it, str(path.relative_to(REPO))) for it in split_items(name, text, Diagnostics())]
+    by_item = {id(it): label for it, label in items}
+    for it in order([it for it, _label in items]):
+        source.add(by_item[id(it)], it.text, first_line=it.first_line)
     if not _has_configuration(source.text):
         source.add("<stub configuration>", STUB_CONFIGURATION)
     return source
@@ -201,6 +215,16 @@ END_TYPE
     return "\n".join(parts)
 
 
+def _enum_asserts(files):
+    """The AssertEqual_<Enum> functions `plc test` generates for the enumerations of these files."""
+    from plc.diagnostics import Diagnostics
+    from plc.driver import enum_asserts
+    from plc.parser import parse
+    trees = [parse(path.read_text(encoding="utf-8"), str(path), Diagnostics())
+             for path in files if path.suffix == ".st"]
+    return enum_asserts(trees)
+
+
 def _repository_defines_test_context(files):
     pattern = re.compile(r"\bST_TestContext\s*:\s*STRUCT\b", re.I)
     return any(pattern.search(_strip_comments(path.read_text(encoding="utf-8"))) for path in files)
@@ -245,9 +269,11 @@ def test_iec_tests_are_accepted_by_openplc_matiec(tmp_path):
     test_files = _st_files(IEC_TESTS)
     if not test_files:
         pytest.skip(f"no .st files under {IEC_TESTS}")
-    files = library_files + test_files
+    # as `plc test` builds them: the toolchain's testing library and one typed assert per enumeration
+    testing = sorted((SRC / "plc" / "stdlib" / "testing").glob("*.st"))
+    files = library_files + test_files + testing
     prelude = None if _repository_defines_test_context(files) else _stub_test_prelude()
-    source = _combine(files, prelude)
+    source = _combine(files, (prelude or "") + _enum_asserts(files))
     result, workdir = _run_iec2c(source, tmp_path)
     _assert_accepted(result, source)
     if os.environ.get("IEC2C_CINCLUDE"):

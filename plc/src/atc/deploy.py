@@ -39,6 +39,7 @@ class Item:
     uses: set[str]             # type names a TYPE block refers to (upper case)
     text: str                  # source text incl. the comments in front of it
     origin: str                # file:line
+    first_line: int = 0        # line of `text`'s first line in its file
     order: int = 0             # position in the input (stable tie-break)
     deps: set[int] = field(default_factory=set)
 
@@ -89,7 +90,10 @@ def split_items(name: str, text: str, diags: Diagnostics) -> list[Item]:
             diags.error(node.pos, "only TYPE, POUs and CONFIGURATION can be deployed (global VAR outside a "
                         "CONFIGURATION)")
             continue
-        item.text = "\n".join(lines[prev_end:end]).strip("\n") + "\n"
+        chunk = lines[prev_end:end]
+        blank = next((k for k, line in enumerate(chunk) if line), len(chunk))
+        item.first_line = prev_end + 1 + blank
+        item.text = "\n".join(chunk).strip("\n") + "\n"
         prev_end = end
         items.append(item)
     if items and prev_end < len(lines):

@@ -238,7 +238,11 @@ IF NOT {fn} THEN
     tc.Failures := tc.Failures + 1;
     tc.LastMessage := msg;
     FOR k := 0 TO 1 DO
-        v := SEL(k = 1, expected, actual);
+        IF k = 0 THEN           (* names[0]: the expected value, names[1]: the actual one *)
+            v := expected;
+        ELSE
+            v := actual;
+        END_IF;
         CASE v OF
 {_enum_case(td, t)}
         END_CASE;

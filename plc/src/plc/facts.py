@@ -37,6 +37,8 @@ RULES: dict[str, Rule] = {
     "enum-order": Rule("'{op}' on enumeration values is rejected by MATIEC", "compare with = or <>"),
     "enum-qualify": Rule("'{value}' is a value of several enumerations ({enums}); MATIEC needs it qualified",
                          "write {enum}#{value}"),
+    "enum-select": Rule("{call} of enumeration values is rejected by MATIEC (no overload takes them)",
+                        "choose with IF ... THEN x := a; ELSE x := b; END_IF"),
     "enum-value": Rule("enumeration values with explicit numbers are not accepted by MATIEC", "remove ':= n'"),
     "fb-array": Rule("arrays of function block instances are not supported by MATIEC"),
     "fb-inout": Rule("a function block instance passed as VAR_IN_OUT is not supported by MATIEC"),
@@ -63,6 +65,8 @@ RULES: dict[str, Rule] = {
                               "initialise the elements in code"),
     "subrange-default": Rule("MATIEC starts an inline subrange variable at 0, not at its lower bound {lo}",
                              "give it an initial value, or declare the subrange as a TYPE"),
+    "type-order": Rule("TYPE {type} uses {used}, which this file declares further down (line {line}): MATIEC reads "
+                       "a file in order and rejects it", "declare {used} before {type}"),
     "time-conversion": Rule("{call} counts seconds in OpenPLC's MATIEC (not milliseconds)",
                             "keep durations as TIME and compare TIME values"),
     "time-unit": Rule("'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",

@@ -63,9 +63,11 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
         warn(f.facts, diags)
     warn(prog.facts, diags)
     lib = library_identifiers()
+    enum_owners = enumeration_owners(files)
     for f in files:
         if f.path in builtin:
             continue
+        type_order(f, prog, diags)
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
@@ -87,6 +89,7 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                                        "MATIEC's C output does not compile", f"use {td.spec.text or td.spec.name} itself",
                                        code="portability.type-alias")
                     if isinstance(td.spec, A.EnumSpec):
+                        ambiguous_initial_value(td, enum_owners, diags)
                         for k, (v, pos, _x) in enumerate(td.spec.values):
                             text = td.spec.texts[k] if k < len(td.spec.texts) else v
                             clash = name_clash(v, prog, lib)
@@ -105,6 +108,52 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                     for b in r.globals:
                         for d in b.decls:
                             var_name(d, prog, diags, lib)
+
+
+def enumeration_owners(files: list[A.SourceFile]) -> dict[str, list[str]]:
+    """Enumeration value (upper case) -> the TYPEs of the program that declare it, in source order."""
+    owners: dict[str, list[str]] = {}
+    for f in files:
+        for item in f.items:
+            if isinstance(item, A.TypeBlock):
+                for td in item.decls:
+                    if isinstance(td.spec, A.EnumSpec):
+                        for v, _pos, _x in td.spec.values:
+                            owners.setdefault(v.upper(), []).append(td.text or td.name)
+    return owners
+
+
+def ambiguous_initial_value(td: A.TypeDecl, owners: dict[str, list[str]], diags: Diagnostics) -> None:
+    """An enumeration TYPE whose initial value is an unqualified value that another enumeration declares too:
+    iec2c rejects it ("Ambiguous enumerate value") where our compiler takes the TYPE's own."""
+    if not isinstance(td.init, A.Name):
+        return
+    others = [t for t in owners.get(td.init.name.upper(), []) if t.upper() != td.name.upper()]
+    if others:      # the expression pass cannot see it when the other enumeration is declared after this TYPE
+        warn([fact("enum-qualify", td.init.pos, value=td.init.text or td.init.name,
+                   enums=", ".join([td.text, *others]), enum=td.text)], diags)
+
+
+def type_order(f: A.SourceFile, prog, diags: Diagnostics) -> None:
+    """A STRUCT member (or an array's element) of a TYPE declared further down the same file: iec2c reads a file
+    in order and rejects it ("invalid specification in structure element declaration"). Files are ordered by
+    `plc deploy openplc` (types before their users); inside one file the order is the author's."""
+    declared = {td.name.upper(): td for item in f.items if isinstance(item, A.TypeBlock) for td in item.decls}
+    seen: set[str] = set()
+    for item in f.items:
+        if not isinstance(item, A.TypeBlock):
+            continue
+        for td in item.decls:
+            specs = [(m.spec, m.pos) for m in td.spec.members] if isinstance(td.spec, A.StructSpec) else \
+                [(td.spec.elem, td.pos)] if isinstance(td.spec, A.ArraySpec) else []
+            for spec, pos in specs:
+                while isinstance(spec, A.ArraySpec):
+                    spec = spec.elem
+                if isinstance(spec, A.TypeRef) and spec.name.upper() in declared and spec.name.upper() not in seen \
+                        and spec.name.upper() != td.name.upper():
+                    later = declared[spec.name.upper()]
+                    warn([fact("type-order", pos, type=td.text, used=later.text, line=later.pos.line)], diags)
+            seen.add(td.name.upper())
 
 
 def errors_inside(pou: A.Pou, diags: Diagnostics) -> bool:

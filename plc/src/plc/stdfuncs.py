@@ -206,7 +206,13 @@ class StdFunc:
 
     def k_sel(self, an, c, args, scope, expected):
         self.one(an, args[0], scope, T.BOOL)
-        return self.same(an, c, args[1:], scope, expected, "ANY")
+        return self.no_enum(an, c, self.same(an, c, args[1:], scope, expected, "ANY"))
+
+    def no_enum(self, an, c, t: T.Type) -> T.Type:
+        """SEL and MUX of enumeration values: ours takes them, MATIEC has no overload for them."""
+        if isinstance(T.resolve_base(t), T.EnumType):
+            an.port(c.pos, "enum-select", call=self.name)
+        return t
 
     def k_mux(self, an, c, args, scope, expected):
         kt = an.expr_typing.expr(args[0], scope, T.DINT)
@@ -214,7 +220,7 @@ class StdFunc:
             an.expr_typing.fix_literal(args[0], T.DINT)
         elif not T.is_elem(kt, "int", "uint"):
             an.err(args[0].pos, f"MUX selector K must be an integer, not {kt}")
-        return self.same(an, c, args[1:], scope, expected, "ANY")
+        return self.no_enum(an, c, self.same(an, c, args[1:], scope, expected, "ANY"))
 
     def k_shift(self, an, c, args, scope, expected):
         t = an.expr_typing.expr(args[0], scope, expected)

@@ -34,6 +34,8 @@ class TypePass(Pass):
             t = self.type_spec(td.spec, name_for=td)
         finally:
             self.resolving.discard(name)
+        # known before its initial value is checked: `TYPE E : (A, B) := E#A;` names the type being declared
+        self.st.prog.types[name] = t
         if td.init is not None and not isinstance(t, T.ErrorType):
             if isinstance(t, T.StructType):
                 self.err(td.pos, "a STRUCT type takes initial values per member, not for the whole type")
