@@ -1,6 +1,6 @@
 """The application's events on the runtime's log and status line, with the real application and the simulated
 carousel: tool change (from, to, duration), prepare, fault raised and cleared with its text from
-reason_codes.toml, abort with its reason, E-stop, homing, host link lost and restored.
+reason_codes.toml, abort with its reason, E-stop, homing, host link restored and the host leaving.
 
 The events file is the one `plc run` writes from the register map (atc.hmi.mapinfo); the host is atc.host's
 Session, the E-stop a forced input (the simulated plant's SimulatedPlant input off: the application then reads
@@ -103,7 +103,10 @@ def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app,
         finally:
             session.stop()
             client.close()
-        rt.wait_for(r"warning: host link lost: no heartbeat change from the host", timeout=30)
+        # a host that stops cleanly writes its last heartbeat (65535): it left (a killed one loses its link:
+        # test_host_system.test_a_host_that_exits_normally_left_and_a_killed_one_lost_its_link)
+        rt.wait_for(r"host left: its last heartbeat was 65535 \(a clean exit\)", timeout=30)
+        assert "host link lost" not in rt.log, rt.log
     texts = {r.code: r.text for r in info.rmap.reasons}
     assert texts[-101] in rt.log, "the fault text comes from reason_codes.toml"
     for line in rt.log.splitlines():          # every tool change line names both tools
