@@ -67,7 +67,8 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
     for f in files:
         if f.path in builtin:
             continue
-        type_order(f, prog, diags)
+        if not f.path.lower().endswith(".xml#st"):    # a PLCopen project's types (plcopen.st_name) are
+            type_order(f, prog, diags)                   # ordered by the tool that writes its ST, not the XML
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
