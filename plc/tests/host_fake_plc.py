@@ -33,6 +33,7 @@ class Behaviour:
     fault_on_abort: int | None = None  # an abort during a change latches this fault (the real PLC: -103)
     recovery: int = 0                 # Recovery (+1 home, +2 confirm) and UncertainTool set with a fault
     uncertain_tool: int = 0
+    left_beat: int | None = None      # a host that just left wrote this last: HostLinkOk TRUE at the start
 
 
 @dataclass
@@ -202,6 +203,9 @@ class FakePlc:
     # ------------------------------------------------------------ toolchanger --
     def _plc(self) -> None:
         st = self._state
+        if self.b.left_beat is not None:
+            self.regs[self.addr.reg["HostHeartbeat"]] = self.b.left_beat
+            self.set_c("HostLinkOk", True)
         st.update(prev_prepare=False, prev_change=False, change_count=0, alive_at=time.monotonic(),
                   prep_tool=0, fault=False, beat=self.r("HostHeartbeat"), link_ok=False, beat_at=time.monotonic())
         while not self.stop_event.wait(self.scan):

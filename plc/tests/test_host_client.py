@@ -51,6 +51,19 @@ def test_numbers_are_written_before_the_request_bit_and_together(capsys):
     assert fake.index(("set", coil("ToolPrepare"), 1)) < fake.index(("set", coil("ToolPrepare"), 0))
 
 
+def test_the_host_beats_before_its_first_command(capsys):
+    """Issue 27: HostLinkOk can still be TRUE from a host that just left (the PLC counts its time-out from that
+    host's last beat); a command sent before this host's own first beat met "host link lost while busy" (-102)
+    when the time-out fell just after it. The first heartbeat is written before anything is asked."""
+    with FakePlc(ADDR, Behaviour(left_beat=0xFFFF)) as fake:
+        status, out, err = run(fake, capsys, "T7")
+    assert status == 0, out + err
+    beat = reg("HostHeartbeat")
+    first_beat = next(i for i, e in enumerate(fake.log) if e[0] == "write" and e[2] == beat)
+    assert first_beat < fake.index(("set", coil("ToolPrepare"), 1))
+    assert first_beat < fake.index(("write", 16, reg("ToolPrepNumber"), [7, 7]))
+
+
 def test_request_waits_for_a_stale_ack_to_drop_first(capsys):
     with FakePlc(ADDR, Behaviour(stale_prepared=True, stale_scans=60)) as fake:
         status, out, err = run(fake, capsys, "T4")

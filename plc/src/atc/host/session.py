@@ -125,7 +125,12 @@ class Session:
         if self.tags.has("HostToolRestore"):
             restore["HostToolRestore"] = self.tool_number
         self.tags.write(**restore)
-        self._beat = int(self.tags.get(self.rmap.link.host_heartbeat))
+        # the first beat at once: HostLinkOk may still be TRUE from a host that just left (the PLC counts its link
+        # time-out from that host's last beat), and a command sent before this host's own first beat would meet
+        # the link lost while the changer is busy
+        name = self.rmap.link.host_heartbeat
+        self._beat = next_beat(int(self.tags.get(name)))
+        self.tags.write(**{name: self._beat})
         self._thread = threading.Thread(target=self._heartbeat, name="host-heartbeat", daemon=True)
         self._thread.start()
         self._alive, self._alive_at = self._alive_key(s), time.monotonic()
