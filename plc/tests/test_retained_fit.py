@@ -22,10 +22,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from machine_project import REPO, copy_project, plc
-
 from atc.host.tags import Tags, load_map
+from machine_project import REPO, copy_project, plc
 from plc.modbus import ModbusClient
+from test_host_system import free_port
 
 try:
     from runtime_fixtures.rt_harness import SLOW
@@ -33,11 +33,12 @@ except ImportError:
     SLOW = 1.0
 
 
-def free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def wait_for(log, text: str, timeout: float = 20.0) -> None:
+    """Until the log (a text getter) holds `text`; bounded."""
+    deadline = time.monotonic() + timeout * SLOW
+    while text not in log():
+        assert time.monotonic() < deadline, f"no {text!r} in the log:\n{log()[-3000:]}"
+        time.sleep(0.1)
 
 
 @pytest.fixture(scope="module")
@@ -103,10 +104,7 @@ def test_a_spindle_tool_the_machine_has_no_pocket_for_is_confirmed_out(project, 
         code, out = host(project, "ten", port, "T10 M6")
         assert code == 0 and "M6: tool 10 in spindle" in out, out
     with running(project, "default", retain, tmp_path / "six.log") as (port, log):
-        deadline = time.monotonic() + 20 * SLOW
-        while "tool 10 in the spindle has no pocket" not in log():
-            assert time.monotonic() < deadline, log()[-3000:]
-            time.sleep(0.1)
+        wait_for(log, "tool 10 in the spindle has no pocket")
         assert re.search(r"saved on a machine with 10 pockets; this one has 6", log()), log()
         assert re.search(r"pockets 7\.\.9 are not on this machine: what they held \(T7, T8, T9\) is dropped",
                          log()), log()
@@ -142,10 +140,7 @@ def test_new_pockets_start_full_and_the_plant_agrees(project, tmp_path):
         code, out = host(project, "default", port, "T3 M6")
         assert code == 0 and "M6: tool 3 in spindle" in out, out
     with running(project, "ten", retain, tmp_path / "ten.log") as (port, log):
-        deadline = time.monotonic() + 20 * SLOW
-        while "start as on a first start" not in log():
-            assert time.monotonic() < deadline, log()[-3000:]
-            time.sleep(0.1)
+        wait_for(log, "start as on a first start")
         assert "saved on a machine with 6 pockets; this one has 10" in log(), log()
         names = [f"PocketTool{n}" for n in range(1, 11)]
         table = read(project, "ten", port, *names, "ToolInSpindle", "RestartFit", "Recovery")
