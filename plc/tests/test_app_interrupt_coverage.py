@@ -1,15 +1,16 @@
-"""The interrupted-change scan tests (iec_tests/app/TEST_AbortAt*, TEST_EStopAt*) cover every step of the default
-Put Tool and Get Tool sequences, and nothing beyond: one test per step and kind, each calling FB_InterruptAtStep
-with its own step.  Adding a step to put.seq or get.seq without its tests fails here."""
+"""The interrupted-change scan tests cover every step of the default Put Tool and Get Tool sequences, and nothing
+beyond: the cases of iec_tests/app/TEST_InterruptedChange (its table TEST_InterruptedChange.cases.toml, read as
+`plc test` reads it) are every step of put.seq and get.seq, each interrupted by an operator abort and by the
+E-stop chain.  Adding a step to put.seq or get.seq without widening the table fails here."""
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
-import pytest
+from plc import testcases
 
 REPO = Path(__file__).resolve().parents[2]
-APP_TESTS = REPO / "iec_tests" / "app"
+TEST = REPO / "iec_tests" / "app" / "TEST_InterruptedChange.st"
+KINDS = ("OperatorAbort", "EStopOpened")
 
 
 def step_count(seq: Path) -> int:
@@ -18,17 +19,13 @@ def step_count(seq: Path) -> int:
                if line.strip() and not line.strip().startswith("/"))
 
 
-@pytest.mark.parametrize("kind", ["Abort", "EStop"])
-@pytest.mark.parametrize("phase,seq", [("Put", "put.seq"), ("Get", "get.seq")])
-def test_every_step_has_its_interrupt_test(kind, phase, seq):
-    steps = step_count(REPO / "configs" / "sequences" / seq)
-    found = {}
-    for path in APP_TESTS.glob(f"TEST_{kind}At{phase}Step*.st"):
-        text = path.read_text(encoding="utf-8")
-        m = re.search(r"AtStep := (\d+), PutPhase := (TRUE|FALSE), Kind := (\d)", text)
-        assert m, f"{path.name}: no FB_InterruptAtStep call"
-        assert m.group(2) == ("TRUE" if phase == "Put" else "FALSE"), path.name
-        assert int(m.group(3)) == (0 if kind == "Abort" else 1), path.name
-        assert path.stem.endswith(f"Step{int(m.group(1)):02d}"), f"{path.name} runs step {m.group(1)}"
-        found[int(m.group(1))] = path.name
-    assert sorted(found) == list(range(1, steps + 1)), f"{seq} has {steps} steps; tests for {sorted(found)}"
+def test_the_interrupt_table_covers_every_step_of_put_and_get_for_both_kinds():
+    cases = testcases.load([str(TEST)])
+    assert not cases.diags.items, [d.render(cases.sources) for d in cases.diags.items]
+    found = [tuple(text for _pos, _name, text in case.args) for case in cases.cases]
+    assert all(len(args) == 3 for args in found), found        # every case names Kind, Sequence and AtStep
+    expected = [(kind, sequence, str(step))
+                for sequence, seq in (("KindPutTool", "put.seq"), ("KindGetTool", "get.seq"))
+                for kind in KINDS
+                for step in range(1, step_count(REPO / "configs" / "sequences" / seq) + 1)]
+    assert sorted(found) == sorted(expected)

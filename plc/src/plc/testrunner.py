@@ -4,10 +4,13 @@ A test is a FUNCTION_BLOCK whose name starts with TEST_ and that has a
 VAR_IN_OUT of type ST_TestContext.  `plc test` compiles st_src/ and the test
 files once into one native binary (the generated C plus stdlib/test_main.c and
 the runtime's scan core), runs each test on a fresh instance with a simulated
-clock, and reports.
+clock, and reports.  A test passes when it finishes (tc.Done) with at least one
+assert executed and none failed.  A test with VAR_INPUTs runs once per case of
+its table (testcases.py).
 """
 from __future__ import annotations
 
+import argparse
 import fnmatch
 import os
 import subprocess
@@ -17,7 +20,9 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .driver import INCLUDE, STDLIB, UserError, cc, compile_sources, content_hash, print_diagnostics
+from . import testcases
+from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, content_hash,
+                     print_diagnostics)
 from .project import add_view_options, project_root, refused_by_preflight
 from .resources import RUNTIME_SRC
 
@@ -26,13 +31,19 @@ SCAN_CORE = (RUNTIME_SRC / "scan_core.c", RUNTIME_SRC / "scan_core.h")
 
 DEFAULT_TIMEOUT_S = 20
 
+# How a status other than PASS/FAIL is tagged after the test's name.
+STATUS_TAGS = {"NOASSERT": "no assert", "BUDGET": "budget", "HANG": "hang", "FAULT": "fault"}
+
 
 @dataclass
 class TestResult:
     name: str
     file: str
     line: int
-    status: str = "NOTRUN"          # PASS FAIL BUDGET HANG FAULT
+    col: int = 1
+    template: str | None = None     # a case: the parametrised test it runs (its position is the table row)
+    runnable: bool = True           # False for a parametrised test itself: only its cases run
+    status: str = "NOTRUN"          # PASS FAIL NOASSERT BUDGET HANG FAULT
     scans: int = 0
     clock_ns: int = 0
     asserts: int = 0
@@ -53,9 +64,16 @@ def fmt_time(ns: int) -> str:
     return f"{ns / 1e6:.3f}ms"
 
 
-def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, optimize: str = "-O1"):
-    """Compile the sources and tests into one runner binary (cached by content)."""
-    res = compile_sources([*src, *paths], test_build=True)
+def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, optimize: str = "-O1",
+                cases: testcases.CaseSet | None = None):
+    """Compile the sources, the tests and the cases of their tables into one runner binary (cached by content)."""
+    cases = cases if cases is not None else testcases.load(paths)
+    if cases.diags.has_errors():
+        print_diagnostics(CompileResult(cases.diags, cases.sources), quiet=True)
+        raise TestBuildError(len(cases.diags.errors))
+    res = compile_sources([*src, *paths], test_build=True, extra_texts=cases.extra_texts())
+    cases.remap(res.diags, res.sources)
+    untabled(res, cases)
     print_diagnostics(res, quiet=True)   # errors only: warnings are `plc check`'s business
     if not res.ok:
         raise TestBuildError(len(res.diags.errors))
@@ -82,16 +100,42 @@ class TestBuildError(Exception):
     pass
 
 
-def collect_tests(res) -> list[TestResult]:
+def scan_tests(res):
     """The TEST_ function blocks in generation order (the order of plc_tests[])."""
-    out = []
     ctx_t = res.program.types.get("ST_TESTCONTEXT")
     for pt in res.program.pous.values():
         if pt.kind != "FUNCTION_BLOCK" or not pt.name.startswith("TEST_"):
             continue
-        if not any(v.section == "VAR_IN_OUT" and v.type is ctx_t for v in pt.scope.vars.values()):
-            continue
-        out.append(TestResult(pt.pou.text, pt.pou.pos.file, pt.pou.pos.line))
+        if any(v.section == "VAR_IN_OUT" and v.type is ctx_t for v in pt.scope.vars.values()):
+            yield pt
+
+
+def inputs_of(pt) -> list[str]:
+    return [v.name for v in pt.scope.vars.values() if v.section == "VAR_INPUT"]
+
+
+def untabled(res, cases: testcases.CaseSet) -> None:
+    """A test with inputs runs only through its case table: without one, it is an error (its checks would
+    silently never run)."""
+    for pt in scan_tests(res):
+        if inputs_of(pt) and pt.name not in cases.templates:
+            res.diags.error(pt.pou.pos, f"{pt.pou.text} has inputs but no case table",
+                            f"write its cases in {pt.pou.text}{testcases.SUFFIX} beside {pt.pou.text}.st "
+                            "(plc test --help), or make the inputs local variables", code="test.cases")
+
+
+def collect_tests(res, cases: testcases.CaseSet | None = None) -> list[TestResult]:
+    """The tests in the order of plc_tests[]: a case carries its name and the row of its table, a parametrised
+    test itself is listed but not runnable."""
+    by_pou = cases.by_pou() if cases is not None else {}
+    out = []
+    for pt in scan_tests(res):
+        case = by_pou.get(pt.name)
+        if case is not None:
+            out.append(TestResult(case.name, case.pos.file, case.pos.line, case.pos.col, template=case.template))
+        else:
+            pos = pt.pou.pos
+            out.append(TestResult(pt.pou.text, pos.file, pos.line, pos.col, runnable=not inputs_of(pt)))
     return out
 
 
@@ -147,7 +191,10 @@ def run_binary(exe: Path, indices: list[int], tests: list[TestResult], sites, ti
 
 def explain(r: TestResult) -> list[str]:
     out = list(r.messages)
-    if r.status == "BUDGET":
+    where = f"{r.file}:{r.line}:{r.col}"
+    if r.status == "NOASSERT":
+        out.append(f"{where}: no assert was executed (an assert in a branch never taken does not count)")
+    elif r.status == "BUDGET":
         out.append(f"{r.file}:{r.line}: over budget: still running after {r.scans} scans "
                    f"({fmt_time(r.clock_ns)} simulated) without setting tc.Done")
     elif r.status == "HANG":
@@ -157,6 +204,8 @@ def explain(r: TestResult) -> list[str]:
         out.append(f"{r.file}:{r.line}: {r.failures} assertion(s) failed")
     if r.status == "FAIL" and r.failures > len(r.messages):
         out.append(f"... {r.failures - len(r.messages)} more failed assertion(s)")
+    if r.template is not None and r.status in ("FAIL", "FAULT"):
+        out.append(f"{where}: the row of this case of {r.template}")
     return out
 
 
@@ -194,24 +243,25 @@ def cmd_test(args) -> int:
     build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
     t0 = time.perf_counter()
     try:
-        res, exe = build_tests(paths, src, build_dir, args.quiet)
+        cases = testcases.load(paths)
+        res, exe = build_tests(paths, src, build_dir, args.quiet, cases=cases)
     except TestBuildError as e:
         print(f"plc test: the tests do not compile ({e.args[0]} error(s))", file=sys.stderr)
         print("0 passed, 1 failed")
         return 1
     t_build = time.perf_counter() - t0
-    tests = collect_tests(res)
-    selected = list(range(len(tests)))
+    tests = collect_tests(res, cases)
+    selected = [i for i, t in enumerate(tests) if t.runnable]
     if args.k:
         pat = args.k.lower()
         selected = [i for i in selected if pat in tests[i].name.lower() or fnmatch.fnmatch(tests[i].name.lower(), pat)]
     if args.verbose:
-        print(f"built {len(tests)} test(s) in {t_build:.2f}s -> {exe}")
+        print(f"built {sum(t.runnable for t in tests)} test(s) in {t_build:.2f}s -> {exe}")
     sites = res.program.sites
 
     def on_result(r: TestResult) -> None:
         tag = "PASS" if r.passed else "FAIL"
-        extra = f" [{r.status.lower()}]" if r.status not in ("PASS", "FAIL") else ""
+        extra = f" [{STATUS_TAGS[r.status]}]" if r.status in STATUS_TAGS else ""
         info = f"{r.scans} scans, {fmt_time(r.clock_ns)} simulated"
         if args.verbose:
             info += f", {r.asserts} asserts, {r.seconds * 1000:.1f} ms"
@@ -241,14 +291,36 @@ def cmd_test(args) -> int:
     return 0 if failed == 0 and skipped == 0 else 1
 
 
+DESCRIPTION = """\
+Compile st_src/ and the tests into one binary and run every TEST_ function block on a fresh
+instance with a simulated clock. Exit status: 0 all passed, 1 a test failed or did not compile,
+2 usage or the project is not ready (stale generated files: nothing run, no test count)."""
+
+EPILOG = f"""\
+A test passes when it sets tc.Done having executed at least one assert and failed none; a test that
+executed no assert fails ("no assert was executed"), also when its asserts sit in branches never taken.
+
+Parametrised tests: a TEST_X with VAR_INPUTs runs once per case of the table TEST_X{testcases.SUFFIX}
+beside TEST_X.st, each case on a fresh instance, named TEST_X[Input=value,...] and placed at its row:
+
+    [[case]]                                 # one row; a list makes a case per value,
+    Kind = ["OperatorAbort", "EStopOpened"]  # several lists every combination
+    AtStep = [1, 2, 3]                       # -> 6 cases, TEST_X[Kind=OperatorAbort,AtStep=1] ...
+
+Each case calls TEST_X with its row's values on every scan. Inputs are named case-insensitively;
+one a row leaves out keeps its initial value. Values: booleans,
+integers, floats, or a string holding one ST literal ("T#5s", "E_Kind#A" or "A", "'text'"). The
+cases are compiled from memory and never written into the project, so TEST_X stays portable ST."""
+
+
 def add_parser(sub) -> None:
-    p = sub.add_parser("test", help="run the scan-cycle tests written in ST", description=
-                       "Compile st_src/ and the tests into one binary and run every TEST_ function block on a fresh "
-                       "instance with a simulated clock. Exit status: 0 all passed, 1 a test failed or did not "
-                       "compile, 2 usage or the project is not ready (stale generated files: nothing run, no test "
-                       "count).")
-    p.add_argument("paths", nargs="*", metavar="PATH", help="test files or directories (default: iec_tests/)")
-    p.add_argument("-k", metavar="PATTERN", help="run only tests whose name contains PATTERN (or matches the glob)")
+    p = sub.add_parser("test", help="run the scan-cycle tests written in ST", description=DESCRIPTION, epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("paths", nargs="*", metavar="PATH",
+                   help=f"test files or directories (default: iec_tests/); a file's case table TEST_X"
+                        f"{testcases.SUFFIX} is read beside it")
+    p.add_argument("-k", metavar="PATTERN", help="run only tests whose name contains PATTERN (or matches the glob); "
+                   "a case is named TEST_X[Input=value,...]")
     p.add_argument("-x", action="store_true", help="stop at the first failing test")
     p.add_argument("-v", "--verbose", action="store_true", help="more detail per test")
     p.add_argument("-q", "--quiet", action="store_true", help="print failing tests and the summary only")

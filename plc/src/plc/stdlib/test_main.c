@@ -15,7 +15,11 @@
  *   BEGIN <index>
  *   ASSERT <site> <message>\t<expected>\t<actual>
  *   FAULT <kind> <site-less position: file\tline\tcol\tpou>
- *   END <index> <PASS|FAIL|BUDGET|HANG|FAULT> <scans> <clock-ns> <asserts> <failures>
+ *   END <index> <PASS|FAIL|NOASSERT|BUDGET|HANG|FAULT> <scans> <clock-ns> <asserts> <failures>
+ *
+ * A test that ends without a failed assert passes only if it executed at
+ * least one: NOASSERT is a test that checked nothing (its asserts, if any,
+ * sit in branches never taken).
  *
  * Usage: test_main [--timeout SECONDS] [--max-failures N] INDEX...
  */
@@ -151,8 +155,10 @@ static void run_test(uint32_t index, long timeout) {
     in_test = 0;
     if (hung) status = "HANG";
     uint32_t failures = FIELD(ctx, failures, uint32_t);
+    uint32_t asserts = FIELD(ctx, asserts, uint32_t);
     if (strcmp(status, "PASS") == 0 && failures > 0) status = "FAIL";
-    printf("END %u %s %u %lld %u %u\n", index, status, scan, (long long)clock, FIELD(ctx, asserts, uint32_t), failures);
+    if (strcmp(status, "PASS") == 0 && asserts == 0) status = "NOASSERT";
+    printf("END %u %s %u %lld %u %u\n", index, status, scan, (long long)clock, asserts, failures);
     fflush(stdout);
     plc_scan_free(&core);
     free(self);
