@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 
 from plc import runtime
-from plc.io_config import locate
 
 HEAD = '[io]\nlayer = "modbus"\n\n'
 GOOD_DEVICE = textwrap.dedent("""\
@@ -23,7 +22,7 @@ GOOD_DEVICE = textwrap.dedent("""\
     max_age_ms = 12
     status_input = "%IX5.0"
     discrete_inputs = [{ address = 0, count = 32, to = "%IX0.0" }]
-    coils = [{ address = 0, count = 8, from = "%QX2.0", safe = [false, true, false, false, false, false, false, false] }]
+    coils = [{address = 0, count = 8, from = "%QX2.0", safe = [false, true, false, false, false, false, false, false]}]
     input_registers = [{ address = 0, count = 2, to = "%IW0" }]
     holding_registers_read = [{ address = 0, count = 2, to = "%IW2" }]
     holding_registers_write = [{ address = 10, count = 2, from = "%QW0", safe = -1 }]
@@ -57,7 +56,7 @@ def test_the_default_age_limit_is_two_polls_and_the_time_out(tmp_path):
     assert " age=44 " in cfg.io_devices[0] and "name=device1" in cfg.io_devices[0]
 
 
-# (text after HEAD, expected "line:col: error: ..." fragment)
+# (text after HEAD, expected "line:col: error: ..." fragment); a key of a range is reported where it is written
 BAD = [
     (GOOD_DEVICE + 'colour = "red"\n', ":14:1: error: [[io.device]] 1: unknown key 'colour'"),
     (GOOD_DEVICE.replace('to = "%IW2"', 'to = "%IW1"'),
@@ -80,11 +79,11 @@ BAD = [
      'coils = [{ address = 0, count = 1, from = "%QX0.0" }]\n',
      ":4:1: error: [[io.device]] 1: max_age_ms (5) is shorter than poll_ms (10)"),
     ('[[io.device]]\ntcp = "127.0.0.1"\ncoils = [{ address = 0, count = 1970, from = "%QX0.0" }]\n',
-     ":3:10: error: [[io.device]] 1: coils[1]: count: expected an integer 1..1968"),
+     ":3:25: error: [[io.device]] 1: coils[1]: count: expected an integer 1..1968"),
     ('[[io.device]]\ntcp = "127.0.0.1"\ndiscrete_inputs = [{ address = 0, count = 8, to = "%QX0.0" }]\n',
-     ":3:20: error: [[io.device]] 1: discrete_inputs[1]: to: expected a location like %IX0.0"),
+     ":3:46: error: [[io.device]] 1: discrete_inputs[1]: to: expected a location like %IX0.0"),
     ('[[io.device]]\ntcp = "127.0.0.1"\ncoils = [{ address = 0, count = 8, from = "%QX0.0", savef = 1 }]\n',
-     ":3:10: error: [[io.device]] 1: coils[1]: unknown key 'savef'"),
+     ":3:53: error: [[io.device]] 1: coils[1]: unknown key 'savef' (did you mean 'safe'?)"),
     ('[[io.device]]\ntcp = "127.0.0.1"\ncoils = [\n  { address = 0, count = 4, from = "%QX0.0" },\n'
      '  { address = 2, count = 4, from = "%QX1.0" },\n]\n',
      ":5:3: error: [[io.device]] 1: coils addresses 2..5 overlap coils 0..3 on the same device"),
@@ -183,14 +182,15 @@ def test_plc_run_io_modbus_without_devices_is_a_user_error(tmp_path, monkeypatch
         runtime.prepare_run(args, tmp_path / "program.c")
 
 
-def test_locate_finds_keys_tables_and_inline_elements():
-    text = '[io]\nlayer = "modbus"\n\n[[io.device]]\n  name = "a" # x\ncoils = [\n  { a = 1 },  # "{"\n  { b = "}" },\n]\n'
-    pos = locate(text)
-    assert pos[("io", "layer")] == (2, 1)
-    assert pos[("io", "device", 0)] == (4, 1)
-    assert pos[("io", "device", 0, "name")] == (5, 3)
-    assert pos[("io", "device", 0, "coils", 0)] == (7, 3)
-    assert pos[("io", "device", 0, "coils", 1)] == (8, 3)
+def test_two_mistakes_of_one_range_are_both_reported_each_at_its_key(tmp_path):
+    """The schema checks a range's every key: an unknown key no longer hides a bad count beside it (it stopped the
+    range's checks), and each is reported where it is written, not at the range's brace."""
+    message = error_of(tmp_path, HEAD + '[[io.device]]\ntcp = "127.0.0.1"\n'
+                                        'coils = [{ address = 0, count = 1970, from = "%QX0.0", savef = 1 }]\n')
+    path = str(tmp_path / "run.toml")
+    assert message.startswith("2 problem(s) in the run configuration"), message
+    assert f"{path}:6:25: error: [[io.device]] 1: coils[1]: count: expected an integer 1..1968, got 1970" in message
+    assert f"{path}:6:56: error: [[io.device]] 1: coils[1]: unknown key 'savef' (did you mean 'safe'?)" in message
 
 
 @pytest.mark.parametrize("spec,why", [

@@ -132,7 +132,8 @@ def test_a_schema_reports_every_problem_of_a_file_at_once_at_its_place():
         (7, 1, "[io] lines: expected a list of channels 0..63, got [1, 99]", None),
         (9, 1, "unknown section [networks]", "known: [io], [modbus]"),
     ]
-    assert checked["modbus"].bad == {"port", "prot", "read_only"} and "port" not in checked["modbus"]
+    assert checked["modbus"].bad == {"port", "prot", "read_only"}
+    assert checked["modbus"]["port"] == 5020 and "bind" not in checked["modbus"]   # a wrong value: its default
 
 
 def test_a_schema_gives_the_defaults_and_the_values_it_accepted():

@@ -35,8 +35,9 @@ import ipaddress
 import os
 import re
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
+
+from .tomlconf import Check, Document, Field, Int, Invalid, OneOf, Table
 
 # The machine's I/O module, as laid out for both runtimes: its discrete inputs 0..31 are the map's discrete
 # inputs 0..31 (%IX0.0..%IX3.7 on our runtime), its coils 0..7 the map's coils 16..23 (%QX2.0..%QX2.7).  OpenPLC's
@@ -78,72 +79,7 @@ DEVICE_KEYS = {"name", "tcp", "port", "rtu", "baud", "parity", "data_bits", "sto
 RANGE_KEYS = {"address", "count", "to", "from", "safe"}
 
 
-# ------------------------------------------------------------------ positions
-
 Path_ = tuple  # a key path: ("io", "device", 0, "coils", 1, "safe")
-
-
-def locate(text: str) -> dict[Path_, tuple[int, int]]:
-    """Line and column (1-based) of every table header, `key =` and inline-table element of a TOML text.
-
-    tomllib gives no positions; this scanner knows enough TOML for run configurations: [table], [[array]],
-    dotted keys, strings, comments and (multi-line) arrays of inline tables.
-    """
-    pos: dict[Path_, tuple[int, int]] = {}
-    counts: dict[Path_, int] = {}
-    table: Path_ = ()
-    lines = text.splitlines()
-    i = 0
-    while i < len(lines):
-        raw = lines[i]
-        stripped = raw.lstrip()
-        col = len(raw) - len(stripped) + 1
-        m = re.match(r"\[\[\s*([^\]]+?)\s*\]\]", stripped) or re.match(r"\[\s*([^\]]+?)\s*\]", stripped)
-        if m:
-            keys = tuple(k.strip().strip('"') for k in m.group(1).split("."))
-            if stripped.startswith("[["):
-                n = counts.get(keys, 0)
-                counts[keys] = n + 1
-                table = keys + (n,)
-            else:
-                table = keys
-            pos.setdefault(table, (i + 1, col))
-            i += 1
-            continue
-        m = re.match(r"([A-Za-z0-9_\-\".]+)\s*=\s*", stripped)
-        if not m:
-            i += 1
-            continue
-        key = table + tuple(k.strip().strip('"') for k in m.group(1).split("."))
-        pos[key] = (i + 1, col)
-        # the value: walk brackets (skipping strings and comments) to find inline tables of an array
-        depth, elem, line_no, c = 0, 0, i, col - 1 + m.end()
-        started = False
-        while line_no < len(lines):
-            s = lines[line_no]
-            while c < len(s):
-                ch = s[c]
-                if ch in "\"'":
-                    end = s.find(ch, c + 1)
-                    c = len(s) if end < 0 else end + 1
-                    continue
-                if ch == "#":
-                    break
-                if ch in "[{":
-                    if ch == "{" and depth == 1:
-                        pos[key + (elem,)] = (line_no + 1, c + 1)
-                        elem += 1
-                    depth += 1
-                    started = True
-                elif ch in "]}":
-                    depth -= 1
-                c += 1
-            if not started or depth <= 0:
-                break
-            line_no += 1
-            c = 0
-        i = line_no + 1
-    return pos
 
 
 # ---------------------------------------------------------------------- model
@@ -222,149 +158,173 @@ def bit_name(prefix: str, bit: int) -> str:
     return f"{prefix}{bit // 8}.{bit % 8}"
 
 
-class Checker:
-    """Collects problems of one TOML file, each positioned at its key (or the nearest enclosing one)."""
+# ------------------------------------------------------------------------ schema
 
-    def __init__(self, path: Path, text: str) -> None:
-        self.path = path
-        self.pos = locate(text)
-        self.problems: list[str] = []
-        self.keys: list[Path_] = []          # the key of each problem
-        self.places: list[tuple[int, int]] = []  # the line and column of each problem
-
-    def in_file_order(self) -> list[str]:
-        """The problems by line and column (the order they are found in is the checks')."""
-        return [p for _, p in sorted(zip(self.places, self.problems), key=lambda t: t[0])]
-
-    def error(self, key: Path_, message: str) -> None:
-        self.keys.append(key)
-        k = key
-        while k and k not in self.pos:
-            k = k[:-1]
-        line, col = self.pos.get(k, (1, 1))
-        self.places.append((line, col))
-        self.problems.append(f"{self.path}:{line}:{col}: error: {message}")
-
-    def integer(self, key: Path_, where: str, value: Any, lo: int, hi: int) -> int | None:
-        if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
-            self.error(key, f"{where}: expected an integer {lo}..{hi}, got {value!r}")
-            return None
-        return value
+def _device_name(value: Any) -> str:
+    if not isinstance(value, str) or not re.fullmatch(r"[A-Za-z0-9_\-]{1,31}", value):
+        raise Invalid(f"expected 1-31 letters, digits, '-' or '_', got {value!r}")
+    return value
 
 
-def check_devices(path: Path, text: str, entries: Any, ck: Checker | None = None) -> tuple[list[IoDevice], list[str]]:
-    """Check the `[[io.device]]` entries of a run configuration; return the devices and the problems (of these
-    tables; recorded in `ck` too when the caller checks the rest of the file with it)."""
-    ck = ck or Checker(Path(path), text)
-    before = len(ck.problems)
+def _ipv4(value: Any) -> str:
+    try:
+        return str(ipaddress.IPv4Address(value))
+    except (ipaddress.AddressValueError, ValueError, TypeError):
+        raise Invalid(f"{value!r} is not an IPv4 address") from None
+
+
+def _serial_device(value: Any) -> str:
+    if not isinstance(value, str) or not value or " " in value:
+        raise Invalid(f"expected the serial device's path, got {value!r}")
+    if not os.path.exists(value):
+        raise Invalid(f"serial device {value} does not exist")
+    return value
+
+
+def _baud(value: Any) -> int:
+    if value not in BAUD_RATES or isinstance(value, bool):
+        raise Invalid(f"{value!r} is not a rate the serial driver can set ({', '.join(map(str, BAUD_RATES[3:12]))}, "
+                      "...)")
+    return value
+
+
+def _backoff(value: Any) -> tuple[int, int]:
+    if (not isinstance(value, list) or len(value) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
+                                                                   for v in value)
+            or not 1 <= value[0] <= value[1] <= 600000):
+        raise Invalid(f"expected [FIRST, MAX] in ms, 1 <= FIRST <= MAX <= 600000, got {value!r}")
+    return value[0], value[1]
+
+
+def _status_input(value: Any) -> int:
+    bit = parse_location(value, "%IX", True)
+    if bit is None or bit >= BITS:
+        raise Invalid(f"expected %IXa.b inside %IX0.0..%IX99.7, got {value!r}")
+    return bit
+
+
+def _location(prefix: str, bits: bool) -> Check:
+    example = f"{prefix}0.0" if bits else f"{prefix}0"
+
+    def check(value: Any) -> int:
+        image = parse_location(value, prefix, bits)
+        if image is None:
+            raise Invalid(f"expected a location like {example}, got {value!r}")
+        return image
+    return Check(check, f"a location like {example}")
+
+
+_ANY = Check(lambda v: v)       # checked by the code that reads it (the ranges: _check_ranges)
+TCP_ONLY = ("port",)
+RTU_ONLY = ("baud", "parity", "data_bits", "stop_bits")
+
+DEVICE = Table((
+    Field("name", Check(_device_name), "for log lines"),
+    Field("tcp", Check(_ipv4), "the IPv4 address of a Modbus TCP device"),
+    Field("port", Int(1, 65535), "TCP port", default=502),
+    Field("rtu", Check(_serial_device), "the serial device of a Modbus RTU line"),
+    Field("baud", Check(_baud), default=19200),
+    Field("parity", OneOf(tuple(PARITY)), default="none"),
+    Field("data_bits", Int(7, 8), default=8),
+    Field("stop_bits", Int(1, 2), default=1),
+    Field("unit", Int(0, 255), "Modbus unit (slave) id", default=1),
+    Field("poll_ms", Int(1, 60000), "poll period", default=10),
+    Field("timeout_ms", Int(1, 60000), "response timeout of one transaction", default=50),
+    Field("max_age_ms", Int(1, 600000), "inputs older than this: the device is lost"),
+    Field("backoff_ms", Check(_backoff), "reconnect back-off: first wait, doubling up to the second",
+          default=(100, 2000)),
+    Field("status_input", Check(_status_input), "TRUE while the device is lost"),
+    *(Field(k.key, _ANY, f"FC{k.spec} ranges") for k in KINDS),
+))
+# a unit on a serial line: 0 is the broadcast address, 248..255 are reserved
+RTU_DEVICE = DEVICE.replace(Field("unit", Int(1, 247), "Modbus unit (slave) id", default=1))
+DEVICE_KEYS = set(DEVICE.names)
+
+
+def range_table(kind: RangeKind) -> Table:
+    """The keys of one range of `kind`: { address, count, to } or { address, count, from, safe }."""
+    prefix = ("%QX" if kind.bits else "%QW") if kind.output else ("%IX" if kind.bits else "%IW")
+    fields = [Field("address", Int(0, 65535), "first address on the device", required=True),
+              Field("count", Int(1, kind.max_count), "values", required=True),
+              Field("from" if kind.output else "to", _location(prefix, kind.bits), "first location of the image",
+                    required=True)]
+    if kind.output:
+        fields.append(Field("safe", _ANY, "the values the device gets when the runtime stops"))
+    return Table(tuple(fields))
+
+
+RANGES = {k.key: range_table(k) for k in KINDS}
+
+
+# ---------------------------------------------------------------------- checks
+
+def check_devices(doc: Document, entries: Any) -> list[IoDevice]:
+    """Check the `[[io.device]]` entries of a run configuration `doc` (every problem into doc.diagnostics);
+    the devices as far as their values are right."""
     devices: list[IoDevice] = []
     base: Path_ = ("io", "device")
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
-        ck.error(base, "io.device: write each device as a [[io.device]] table")
-        return [], ck.problems[before:]
+        doc.error(base, "io.device: write each device as a [[io.device]] table")
+        return []
     if len(entries) > MAX_DEVICES:
-        ck.error(base + (MAX_DEVICES,), f"at most {MAX_DEVICES} I/O devices")
+        doc.error(base + (MAX_DEVICES,), f"at most {MAX_DEVICES} I/O devices")
     for n, entry in enumerate(entries[:MAX_DEVICES]):
-        devices.append(_check_device(ck, base + (n,), n + 1, entry))
+        devices.append(_check_device(doc, base + (n,), n + 1, entry))
     # the checks across devices run whatever else was found: every mistake is reported in one run (a value found
     # wrong is left out of them, so it is reported once, where it is written)
-    _check_overlaps(ck, devices)
-    _check_lines(ck, devices)
-    return devices, ck.problems[before:]
+    _check_overlaps(doc, devices)
+    _check_lines(doc, devices)
+    return devices
 
 
-def _check_device(ck: Checker, key: Path_, index: int, e: dict) -> IoDevice:
+def _check_device(doc: Document, key: Path_, index: int, e: dict) -> IoDevice:
     """The device as far as its values are right (the keys found wrong in `bad`)."""
     where = f"[[io.device]] {index}"
-    before = len(ck.problems)
-    for k in e:
-        if k not in DEVICE_KEYS:
-            ck.error(key + (k,), f"{where}: unknown key '{k}' (known: {', '.join(sorted(DEVICE_KEYS))})")
-    name = e.get("name", f"device{index}")
-    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_\-]{1,31}", name):
-        ck.error(key + ("name",), f"{where}: name must be 1-31 letters, digits, '-' or '_', got {name!r}")
-        name = f"device{index}"
-    dev = IoDevice(index=index, name=name)
+    checked = (RTU_DEVICE if "rtu" in e and "tcp" not in e else DEVICE).check(doc, key, e, where + ":")
+    bad = set(checked.bad)
+
+    def error(k: str | None, message: str) -> None:
+        doc.error(key + ((k,) if k else ()), f"{where}: {message}")
+        if k:
+            bad.add(k)
+
+    dev = IoDevice(index=index, name=checked.get("name", f"device{index}"))
     if ("tcp" in e) == ("rtu" in e):
-        ck.error(key, f"{where}: give exactly one of tcp = \"ADDRESS\" and rtu = \"/dev/SERIAL\"")
-    if "tcp" in e:
-        try:
-            dev.tcp = str(ipaddress.IPv4Address(e["tcp"]))
-        except (ipaddress.AddressValueError, ValueError, TypeError):
-            ck.error(key + ("tcp",), f"{where}: tcp: {e['tcp']!r} is not an IPv4 address")
-        for k in ("baud", "parity", "data_bits", "stop_bits"):
-            if k in e:
-                ck.error(key + (k,), f"{where}: {k} belongs to an rtu device")
-        if "port" in e:
-            dev.port = ck.integer(key + ("port",), f"{where}: port", e["port"], 1, 65535) or 502
-    if "rtu" in e:
-        if "port" in e:
-            ck.error(key + ("port",), f"{where}: port belongs to a tcp device")
-        rtu = e["rtu"]
-        if not isinstance(rtu, str) or not rtu or " " in rtu:
-            ck.error(key + ("rtu",), f"{where}: rtu: expected the serial device's path, got {rtu!r}")
-        elif not os.path.exists(rtu):
-            ck.error(key + ("rtu",), f"{where}: rtu: serial device {rtu} does not exist")
-        else:
-            dev.rtu = rtu
-        if "baud" in e:
-            b = e["baud"]
-            if b not in BAUD_RATES or isinstance(b, bool):
-                ck.error(key + ("baud",), f"{where}: baud: {b!r} is not a rate the serial driver can set "
-                                          f"({', '.join(map(str, BAUD_RATES[3:12]))}, ...)")
-            else:
-                dev.baud = b
-        if "parity" in e:
-            if e["parity"] not in PARITY:
-                ck.error(key + ("parity",), f"{where}: parity: expected \"none\", \"even\" or \"odd\", "
-                                            f"got {e['parity']!r}")
-            else:
-                dev.parity = e["parity"]
-        if "data_bits" in e:
-            dev.data_bits = ck.integer(key + ("data_bits",), f"{where}: data_bits", e["data_bits"], 7, 8) or 8
-        if "stop_bits" in e:
-            dev.stop_bits = ck.integer(key + ("stop_bits",), f"{where}: stop_bits", e["stop_bits"], 1, 2) or 1
-    if "unit" in e:
-        hi = 247 if "rtu" in e else 255
-        dev.unit = ck.integer(key + ("unit",), f"{where}: unit", e["unit"], 1 if "rtu" in e else 0, hi) or 1
-    for k, lo, hi in (("poll_ms", 1, 60000), ("timeout_ms", 1, 60000), ("max_age_ms", 1, 600000)):
+        error(None, "give exactly one of tcp = \"ADDRESS\" and rtu = \"/dev/SERIAL\"")
+    for k in RTU_ONLY if "tcp" in e else ():
         if k in e:
-            v = ck.integer(key + (k,), f"{where}: {k}", e[k], lo, hi)
-            if v is not None:
-                setattr(dev, k, v)
+            error(k, f"{k} belongs to an rtu device")
+    for k in TCP_ONLY if "rtu" in e else ():
+        if k in e:
+            error(k, f"{k} belongs to a tcp device")
+    if "tcp" in e:
+        dev.tcp, dev.port = checked.get("tcp"), checked["port"]
+    if "rtu" in e:
+        dev.rtu = checked.get("rtu")
+        dev.baud, dev.parity = checked["baud"], checked["parity"]
+        dev.data_bits, dev.stop_bits = checked["data_bits"], checked["stop_bits"]
+    dev.unit, dev.poll_ms, dev.timeout_ms = checked["unit"], checked["poll_ms"], checked["timeout_ms"]
+    dev.max_age_ms, dev.backoff_ms = checked.get("max_age_ms"), checked["backoff_ms"]
+    dev.status_input = checked.get("status_input")
     if dev.age_ms < dev.poll_ms:
-        ck.error(key + ("max_age_ms",), f"{where}: max_age_ms ({dev.age_ms}) is shorter than poll_ms "
-                                        f"({dev.poll_ms}): the device would always count as lost")
-    if "backoff_ms" in e:
-        b = e["backoff_ms"]
-        if (not isinstance(b, list) or len(b) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
-                                                                 for v in b) or not 1 <= b[0] <= b[1] <= 600000):
-            ck.error(key + ("backoff_ms",), f"{where}: backoff_ms: expected [FIRST, MAX] in ms, "
-                                            f"1 <= FIRST <= MAX <= 600000, got {b!r}")
-        else:
-            dev.backoff_ms = (b[0], b[1])
-    if "status_input" in e:
-        bit = parse_location(e["status_input"], "%IX", True)
-        if bit is None or bit >= BITS:
-            ck.error(key + ("status_input",), f"{where}: status_input: expected %IXa.b inside "
-                                              f"%IX0.0..%IX99.7, got {e['status_input']!r}")
-        else:
-            dev.status_input = bit
+        error("max_age_ms", f"max_age_ms ({dev.age_ms}) is shorter than poll_ms ({dev.poll_ms}): the device would "
+                            "always count as lost")
     for kind in KINDS:
         if kind.key in e:
-            _check_ranges(ck, key + (kind.key,), where, kind, e[kind.key], dev)
+            _check_ranges(doc, key + (kind.key,), where, kind, e[kind.key], dev)
     if not any(kind.key in e for kind in KINDS):
-        ck.error(key, f"{where}: no ranges: give at least one of {', '.join(k.key for k in KINDS)}")
-    dev.bad = {k[len(key)] for k in ck.keys[before:] if len(k) > len(key) and k[:len(key)] == key}
+        error(None, f"no ranges: give at least one of {', '.join(k.key for k in KINDS)}")
+    dev.bad = bad
     return dev
 
 
-def _check_ranges(ck: Checker, key: Path_, where: str, kind: RangeKind, value: Any, dev: IoDevice) -> None:
+def _check_ranges(doc: Document, key: Path_, where: str, kind: RangeKind, value: Any, dev: IoDevice) -> None:
     if isinstance(value, dict):
         value = [value]
     if not isinstance(value, list):
-        ck.error(key, f"{where}: {kind.key}: expected a list of {{ address, count, "
-                      f"{'from' if kind.output else 'to'} }} tables")
+        doc.error(key, f"{where}: {kind.key}: expected a list of {{ address, count, "
+                       f"{'from' if kind.output else 'to'} }} tables")
+        dev.bad.add(kind.key)
         return
     prefix = ("%QX" if kind.bits else "%QW") if kind.output else ("%IX" if kind.bits else "%IW")
     image_key = "from" if kind.output else "to"
@@ -373,35 +333,19 @@ def _check_ranges(ck: Checker, key: Path_, where: str, kind: RangeKind, value: A
         rk = key + (i,)
         w = f"{where}: {kind.key}[{i + 1}]"
         if not isinstance(r, dict):
-            ck.error(rk, f"{w}: expected {{ address = N, count = N, {image_key} = \"{prefix}...\" }}")
+            doc.error(rk, f"{w}: expected {{ address = N, count = N, {image_key} = \"{prefix}...\" }}")
             continue
-        allowed = {"address", "count", image_key} | ({"safe"} if kind.output else set())
-        bad = [k for k in r if k not in allowed]
-        if bad:
-            ck.error(rk, f"{w}: unknown key '{bad[0]}' (known: {', '.join(sorted(allowed))})")
+        checked = RANGES[kind.key].check(doc, rk, r, w + ":")
+        if not checked.ok:
             continue
-        missing = [k for k in ("address", "count", image_key) if k not in r]
-        if missing:
-            ck.error(rk, f"{w}: {missing[0]} is required")
-            continue
-        address = ck.integer(rk, f"{w}: address", r["address"], 0, 65535)
-        count = ck.integer(rk, f"{w}: count", r["count"], 1, kind.max_count)
-        image = parse_location(r[image_key], prefix, kind.bits)
-        if image is None:
-            example = "%IX0.0" if prefix.endswith("X") else f"{prefix}0"
-            ck.error(rk, f"{w}: {image_key}: expected a location like {example.replace('%IX', prefix)}, "
-                         f"got {r[image_key]!r}")
-            continue
-        if address is None or count is None:
-            continue
+        address, count, image = checked["address"], checked["count"], checked[image_key]
         if address + count > 65536:
-            ck.error(rk, f"{w}: addresses {address}..{address + count - 1} run past the device's 65535")
+            doc.error(rk, f"{w}: addresses {address}..{address + count - 1} run past the device's 65535")
             continue
         if image + count > limit:
             last = bit_name(prefix, image + count - 1) if kind.bits else f"{prefix}{image + count - 1}"
             end = bit_name(prefix, limit - 1) if kind.bits else f"{prefix}{limit - 1}"
-            ck.error(rk, f"{w}: {count} values from {r[image_key]} end at {last}, outside the image "
-                         f"(last {end})")
+            doc.error(rk, f"{w}: {count} values from {r[image_key]} end at {last}, outside the image (last {end})")
             continue
         safe = [0] * count
         if "safe" in r:
@@ -411,7 +355,7 @@ def _check_ranges(ck: Checker, key: Path_, where: str, kind: RangeKind, value: A
                 (lambda v: isinstance(v, int) and not isinstance(v, bool) and -32768 <= v <= 65535)
             if len(items) not in (1, count) or not all(ok_type(v) for v in items):
                 what = "true/false" if kind.bits else "integers -32768..65535"
-                ck.error(rk, f"{w}: safe: one value or {count} values ({what})")
+                doc.error(rk + ("safe",), f"{w}: safe: one value or {count} values ({what})")
                 continue
             safe = [int(v) & 0xFFFF for v in (items * count if len(items) == 1 else items)]
         dev.ranges.append(IoRange(kind, address, count, image, safe, nth=i))
@@ -421,7 +365,7 @@ def _check_ranges(ck: Checker, key: Path_, where: str, kind: RangeKind, value: A
 RUNTIME_INPUTS = {398: "ForcesActive (set while a variable is forced)", 399: "SimulatedPlant (the simulated plant)"}
 
 
-def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
+def _check_overlaps(doc: Document, devices: list[IoDevice]) -> None:
     """Two ranges writing one part of the image, two ranges on one table of one device, a status input inside
     an input range; devices sharing a serial line with different line settings or the same unit."""
     def area(r: IoRange) -> str:
@@ -434,21 +378,21 @@ def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
     placed: list[tuple[IoDevice, int, IoRange]] = []
     for d in devices:
         for i, r in enumerate(d.ranges):
-            for od, oi, o in placed:
+            for od, _oi, o in placed:
                 if area(o) == area(r) and r.image < o.image + o.count and o.image < r.image + r.count:
-                    ck.error(("io", "device", d.index - 1, r.kind.key, r.nth),
+                    doc.error(("io", "device", d.index - 1, r.kind.key, r.nth),
                              f"[[io.device]] {d.index}: {r.kind.key} {show(r, r.image, r.image + r.count - 1)} "
                              f"overlaps {o.kind.key} of device {od.index} "
                              f"({show(o, o.image, o.image + o.count - 1)})")
                 if (od is d and o.kind.table == r.kind.table and o.kind.output == r.kind.output
                         and r.address < o.address + o.count and o.address < r.address + r.count):
-                    ck.error(("io", "device", d.index - 1, r.kind.key, r.nth),
+                    doc.error(("io", "device", d.index - 1, r.kind.key, r.nth),
                              f"[[io.device]] {d.index}: {r.kind.key} addresses {r.address}..{r.address + r.count - 1}"
                              f" overlap {o.kind.key} {o.address}..{o.address + o.count - 1} on the same device")
             if area(r) == "%IX":
                 for bit, what in RUNTIME_INPUTS.items():
                     if r.image <= bit < r.image + r.count:
-                        ck.error(("io", "device", d.index - 1, r.kind.key, r.nth),
+                        doc.error(("io", "device", d.index - 1, r.kind.key, r.nth),
                                  f"[[io.device]] {d.index}: {r.kind.key} {show(r, r.image, r.image + r.count - 1)} "
                                  f"covers {bit_name('%IX', bit)}, the runtime's {what}")
             placed.append((d, i, r))
@@ -458,15 +402,15 @@ def _check_overlaps(ck: Checker, devices: list[IoDevice]) -> None:
             continue
         for od, _, o in placed:
             if area(o) == "%IX" and o.image <= d.status_input < o.image + o.count:
-                ck.error(("io", "device", d.index - 1, "status_input"),
+                doc.error(("io", "device", d.index - 1, "status_input"),
                          f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} lies in "
                          f"discrete_inputs of device {od.index}")
         if d.status_input in RUNTIME_INPUTS:
-            ck.error(("io", "device", d.index - 1, "status_input"),
+            doc.error(("io", "device", d.index - 1, "status_input"),
                      f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} is the runtime's "
                      f"{RUNTIME_INPUTS[d.status_input]}")
         if d.status_input in status:
-            ck.error(("io", "device", d.index - 1, "status_input"),
+            doc.error(("io", "device", d.index - 1, "status_input"),
                      f"[[io.device]] {d.index}: status_input {bit_name('%IX', d.status_input)} is already the "
                      f"status input of device {status[d.status_input]}")
         status[d.status_input] = d.index
@@ -484,7 +428,7 @@ def line_worst_gap_ms(poll_ms: int, timeout_ms: int, units: int) -> int:
     return poll_ms + 2 * timeout_ms * units
 
 
-def _check_lines(ck: Checker, devices: list[IoDevice]) -> None:
+def _check_lines(doc: Document, devices: list[IoDevice]) -> None:
     """Devices sharing a serial line: the same line settings, distinct units, and an age limit the line's worst
     case can meet (comm loss -> the program's reaction at every answering unit of the line <= max_age_ms)."""
     line_keys = {"rtu", "baud", "parity", "data_bits", "stop_bits", "timeout_ms", "unit", "poll_ms", "max_age_ms"}
@@ -497,12 +441,12 @@ def _check_lines(ck: Checker, devices: list[IoDevice]) -> None:
         for n, d in enumerate(members[1:], 1):
             if (d.baud, d.parity, d.data_bits, d.stop_bits, d.timeout_ms) != \
                     (first.baud, first.parity, first.data_bits, first.stop_bits, first.timeout_ms):
-                ck.error(("io", "device", d.index - 1, "rtu"),
+                doc.error(("io", "device", d.index - 1, "rtu"),
                          f"[[io.device]] {d.index}: serial line {d.rtu} is device {first.index}'s: give it the same "
                          "baud, parity, data_bits, stop_bits and timeout_ms")
             same_unit = [o.index for o in members[:n] if o.unit == d.unit]
             if same_unit:
-                ck.error(("io", "device", d.index - 1, "unit"),
+                doc.error(("io", "device", d.index - 1, "unit"),
                          f"[[io.device]] {d.index}: unit {d.unit} is already device {same_unit[0]} on serial line "
                          f"{d.rtu}")
         if len(members) < 2:
@@ -514,7 +458,7 @@ def _check_lines(ck: Checker, devices: list[IoDevice]) -> None:
             if d.max_age_ms is None:
                 d.max_age_ms = need
             elif d.max_age_ms < need:
-                ck.error(("io", "device", d.index - 1, "max_age_ms"),
+                doc.error(("io", "device", d.index - 1, "max_age_ms"),
                          f"[[io.device]] {d.index}: max_age_ms {d.max_age_ms} cannot hold on serial line {d.rtu} "
                          f"shared by {len(members)} units: between two polls of a unit up to {gap} ms can pass "
                          f"(poll {poll} ms, 2 time-outs of {d.timeout_ms} ms per unit), and after a loss "

@@ -57,11 +57,11 @@ import socket
 import subprocess
 import sys
 import tempfile
-import tomllib
 from pathlib import Path
 from typing import Any, Sequence
 
-from . import io_config, project
+from . import io_config, project, tomlconf
+from .diagnostics import Diagnostic
 from .extensions import RunSetup
 from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
 
@@ -289,19 +289,11 @@ def load_config(path: Path) -> RunConfig:
     each as `file:line:col: error: message`."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read: {exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        at = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
-        line, col = (at.group(1), at.group(2)) if at else ("1", "1")
-        raise ConfigError(f"{path}:{line}:{col}: error: invalid TOML: {exc}") from None
-
-    ck = io_config.Checker(path, text)
+        doc = tomlconf.read(path)
+    except tomlconf.TomlError as exc:
+        d = exc.diagnostic
+        raise ConfigError(f"{path}: {d.message}" if d.line == 0 else one_line(d)) from None
+    data = doc.data
     cfg = RunConfig()
 
     def check(section: str, key: str, fn, *args):
@@ -309,18 +301,18 @@ def load_config(path: Path) -> RunConfig:
         try:
             return fn(f"[{section}] {key}", data[section][key], *args)
         except ConfigError as exc:
-            ck.error((section, key), str(exc))
+            doc.error((section, key), str(exc))
             return None
 
     for section, table in data.items():
         if section not in _KEYS:
-            ck.error((section,), f"unknown section [{section}] (known: " + ", ".join(f"[{s}]" for s in _KEYS) + ")")
+            doc.error((section,), f"unknown section [{section}] (known: " + ", ".join(f"[{s}]" for s in _KEYS) + ")")
         elif not isinstance(table, dict):
-            ck.error((section,), f"'{section}' must be a section [{section}]")
+            doc.error((section,), f"'{section}' must be a section [{section}]")
         else:
             for key in table:
                 if key not in _KEYS[section]:
-                    ck.error((section, key), f"[{section}] unknown key '{key}' (known: "
+                    doc.error((section, key), f"[{section}] unknown key '{key}' (known: "
                              + ", ".join(sorted(_KEYS[section])) + ")")
     tables = {s: t for s, t in data.items() if s in _KEYS and isinstance(t, dict)}
     data = tables
@@ -343,12 +335,13 @@ def load_config(path: Path) -> RunConfig:
     if "sim_flag" in io:
         cfg.sim_flag = check("io", "sim_flag", check_discrete_input) or cfg.sim_flag
     if "device" in io:
-        devices, problems = io_config.check_devices(path, text, io["device"], ck)
-        if not problems:
+        before = len(doc.errors)
+        devices = io_config.check_devices(doc, io["device"])
+        if len(doc.errors) == before:
             cfg.io_devices = io_config.device_specs(devices)
             cfg.devices = devices
     if cfg.io == "modbus" and "device" not in io:
-        ck.error(("io", "layer"), "[io] layer: layer \"modbus\" needs at least one [[io.device]]")
+        doc.error(("io", "layer"), "[io] layer: layer \"modbus\" needs at least one [[io.device]]")
 
     retain = data.get("retain", {})
     if "file" in retain:
@@ -380,10 +373,16 @@ def load_config(path: Path) -> RunConfig:
             value = check("monitor", key, _check_file_name)
             if value is not None:
                 setattr(cfg, attr, value if value.is_absolute() else Path(os.path.normpath(path.parent / value)))
-    if ck.problems:
-        raise ConfigError(f"{len(ck.problems)} problem(s) in the run configuration {path}:\n"
-                          + "\n".join(ck.in_file_order()), ck.in_file_order())
+    if doc.errors:
+        problems = [one_line(d) for d in doc.in_file_order()]
+        raise ConfigError(f"{len(problems)} problem(s) in the run configuration {path}:\n" + "\n".join(problems),
+                          problems)
     return cfg
+
+
+def one_line(d: Diagnostic) -> str:
+    """A problem of the run configuration as one line, `file:line:col: error: message (hint)`."""
+    return f"{d.where()}: {d.severity}: {d.message}" + (f" ({d.hint})" if d.hint else "")
 
 
 def apply_application(cfg: RunConfig, setup: RunSetup, where: object) -> None:

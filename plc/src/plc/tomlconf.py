@@ -555,6 +555,7 @@ class Field:
     doc: str = ""                  # one line: what it means, its unit (said with a missing key)
     required: bool = False
     default: Any = MISSING         # the value when absent (none given: absent from the result)
+    hint: str = ""                 # what a right value looks like (with its problems)
 
 
 @dataclass(frozen=True)
@@ -570,6 +571,11 @@ class Table:
 
     def field(self, name: str) -> Field | None:
         return next((f for f in self.fields if f.name == name), None)
+
+    def replace(self, *fields: Field) -> Table:
+        """The same table with these fields in place of the ones of their names."""
+        new = {f.name: f for f in fields}
+        return Table(tuple(new.get(f.name, f) for f in self.fields), self.doc, self.extra)
 
     def check(self, doc: Document, path: KeyPath, value: Any, label: str) -> Checked:
         """Every problem of the table at `path` (its value `value`) into doc.diagnostics; the values accepted."""
@@ -588,13 +594,15 @@ class Table:
             try:
                 out.values[key] = kind.check(v)
             except Invalid as exc:
-                doc.error(path + (key,), _say(label, f"{key}: {exc}"))
+                doc.error(path + (key,), _say(label, f"{key}: {exc}"), f.hint if f is not None else None)
                 out.bad.add(key)
+                if f is not None and f.default is not MISSING:
+                    out.values[key] = f.default         # the rest of the checks go on with the default
         for f in self.fields:
             if f.name in value:
                 continue
             if f.required:
-                doc.error(path, _say(label, f"{f.name} is required" + (f" ({f.doc})" if f.doc else "")))
+                doc.error(path, _say(label, f"{f.name} is required" + (f" ({f.doc})" if f.doc else "")), f.hint)
                 out.bad.add(f.name)
             elif f.default is not MISSING:
                 out.values[f.name] = f.default
