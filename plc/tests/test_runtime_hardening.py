@@ -97,13 +97,14 @@ def test_an_idle_connection_without_a_partial_frame_is_kept(binary):
     with h.Runtime(binary, "--no-rt", "--frame-timeout", "50") as rt:
         with h.Client(rt.port) as used, silent(rt.port) as never_asked:
             assert served(used)
-            time.sleep(1.0)                                     # 20 frame timeouts of silence
+            for _ in range(3):                                  # 3 frame timeouts of silence, each checked
+                h.wait_timeout_check(rt.port)
             assert served(used)
             never_asked.sendall(struct.pack(">HHHBBHH", 7, 0, 6, 1, MODBUS_FC_READ_HOLDING_REGISTERS, MW30, 1))
             never_asked.settimeout(5 * h.SLOW)
             assert never_asked.recv(64)[7:] == bytes([3, 2]) + struct.pack(">H", 4242)
             d = h.read_diag(used)
-            assert d["dropped"] == 0 and d["clients"] == 2
+            assert d["dropped"] == 3 and d["clients"] == 2           # the three half requests, only they
 
 
 # ---------------------------------------------------------------- slot reclaim
@@ -225,7 +226,7 @@ def test_read_only_answers_every_write_with_illegal_function_and_serves_reads(bi
         with pytest.raises(h.ModbusError) as e:
             c.request(pdu)
         assert e.value.code == MODBUS_EXCEPTION_ILLEGAL_FUNCTION
-        time.sleep(0.05)                                        # a few scans: nothing was queued
+        h.wait_scans(c)                                         # a whole scan after it: nothing was queued
         assert c.read_coils(400, 3) == [False] * 3
         assert c.read_holding(1024 + 300, 2) == [0, 0]
         assert served(c) and c.read_input(h.DIAG_BASE, 1) == [1]

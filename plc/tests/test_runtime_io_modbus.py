@@ -28,8 +28,8 @@ import pytest
 
 pytest.importorskip("pymodbus", reason="pymodbus is a test dependency (pip install -e 'plc[test]')")
 
-from io_module import COIL_COUNT, DI_COUNT, IoModule, Mechanics, Wiring  # noqa: E402
-from rt_harness import SANITIZE, SANITIZER_ENV, SLOW  # noqa: E402
+from io_module import IoModule, Mechanics, Wiring  # noqa: E402
+from rt_harness import DIAG, DIAG_BASE, SANITIZE, SANITIZER_ENV, SLOW, wait_for_scans  # noqa: E402
 
 from plc.modbus import ModbusClient  # noqa: E402
 from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS  # noqa: E402
@@ -196,6 +196,15 @@ class Plc:
     def device_diag(self) -> list[int]:
         with ModbusClient("127.0.0.1", self.port) as client:
             return client.read_input_registers(IO_DIAG, 8)
+
+    def scans(self) -> int:
+        """The runtime's count of scans run (its diagnostic block)."""
+        offset, words = DIAG["scans"]
+        with ModbusClient("127.0.0.1", self.port) as client:
+            value = 0
+            for w in client.read_input_registers(DIAG_BASE + offset, words):
+                value = value << 16 | w
+            return value
 
 
 def wait_for(cond, timeout: float, what: str, alive=lambda: True) -> None:
@@ -439,7 +448,12 @@ def test_module_silent_mid_turn_stops_with_its_reason_and_no_change_done(fault_r
     resumed = rig.module.set_mode("normal")
     wait_for(lambda: rig.module.writes and rig.module.answered > resumed, 30 * SLOW, "a write after resuming")
     wait_for(lambda: rig.plc.read("IoModule1Lost")["IoModule1Lost"] is False, 30 * SLOW, "module back")
-    time.sleep(0.2)
+    # proof the program had the chance to switch the motor on: 50 scans (0.2 s) with the module back, then two
+    # reads of the module's inputs after them (a poll cycle writes the outputs last handed over after its read,
+    # so the second read follows a write of what those scans decided)
+    wait_for_scans(rig.plc.scans, 50, 30)
+    reads = rig.module.reads
+    wait_for(lambda: rig.module.reads >= reads + 2, 30 * SLOW, "two polls of the module after those scans")
     after = [e for e in rig.module.events if e[0] > resumed and e[1] == "coils"]
     assert all(not e[2][motor] for e in after), after
     assert not rig.module.coil("motor_on")

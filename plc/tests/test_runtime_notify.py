@@ -42,6 +42,20 @@ class NotifySocket:
             self.messages.append((time.monotonic(), data))
             out.extend(data.split("\n"))
 
+    def drain(self) -> list[str]:
+        """Every message already delivered, without waiting (a datagram is in the socket when its send returns)."""
+        out = []
+        self.sock.setblocking(False)
+        try:
+            while True:
+                data = self.sock.recv(4096).decode()
+                self.messages.append((time.monotonic(), data))
+                out.extend(data.split("\n"))
+        except BlockingIOError:
+            return out
+        finally:
+            self.sock.setblocking(True)
+
     def wait_for(self, text: str, timeout: float) -> list[str]:
         seen: list[str] = []
         deadline = time.monotonic() + timeout * h.SLOW
@@ -78,14 +92,25 @@ def test_ready_after_the_first_scan_then_watchdog_pings_while_scans_run(notify):
 
 def test_a_stuck_scan_stops_the_pings(notify):
     env = {"NOTIFY_SOCKET": str(notify.path), "WATCHDOG_USEC": "200000"}
-    rt = h.Runtime(h.runtime_binary(), "--no-rt", "--watchdog", "100", env=env).start()
+    rt = h.Runtime(h.runtime_binary(), "--no-rt", "--watchdog", "100", "--status-interval", "0.1", env=env).start()
     try:
         with h.Client(rt.port) as c:
             notify.wait_for("WATCHDOG=1", 5)
             c.write_register(1024 + 10, 13)                   # the fixture loops forever in run()
         rt.wait_for(r"watchdog: the program has been inside run\(\)")
-        notify.receive(0.3)                                   # a ping sent before the scan got stuck
-        later = notify.receive(1.0)                           # 20 ping periods: none may come
+        notify.drain()                                        # a ping sent before the scan got stuck
+        # the proof of time on the runtime's own clock: its log thread's status lines, 0.1 s apart on schedule;
+        # the 1st and the 12th after the drain are more than 1 s apart (20 ping periods), every one with the
+        # scan count the stuck scan left
+        start = len(rt.log.splitlines())
+        status = re.compile(r"status .*\| scans (\d+) \|")
+
+        def counts() -> list[str]:
+            return [m.group(1) for line in rt.log.splitlines()[start:] if (m := status.search(line))]
+
+        h.wait_until(lambda: len(counts()) >= 12, 5, "12 status lines")
+        assert len(set(counts())) == 1, f"the scan was not stuck throughout:\n{rt.log}"
+        later = notify.drain()
         assert "WATCHDOG=1" not in later, later
     finally:
         rt.kill()                                             # what systemd does after WatchdogSec

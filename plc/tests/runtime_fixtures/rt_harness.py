@@ -366,6 +366,47 @@ def read_diag(client: Client) -> dict[str, int]:
     return out
 
 
+def wait_for_scans(scans: Callable[[], int], n: int, timeout: float = 5.0) -> int:
+    """Wait until the scan counter read by `scans()` has advanced by n from its value now; return the value reached.
+
+    The proof a negative check needs that the runtime had the chance to act: whatever it acknowledged before this
+    call (a host write queued, a request refused, inputs it polled) has gone through the input latch and the output
+    publication of at least n - 1 whole scans; the scan under way at the call may have latched its inputs before,
+    so n is at least 2.  A counter that stops (a program stuck in run()) is a failure after the timeout, never a
+    pass."""
+    assert n >= 2, "one more scan may have latched its inputs before the call: wait for 2 at least"
+    start = scans()
+
+    def advanced() -> int:
+        now = scans()
+        return now if now >= start + n else 0
+
+    return wait_until(advanced, timeout, f"{n} more scans than the {start} counted at the start")
+
+
+def wait_scans(client: Client, n: int = 2, timeout: float = 5.0) -> int:
+    """wait_for_scans on the runtime's diagnostic block (scans run, input registers 1032..1035) through client."""
+    return wait_for_scans(lambda: read_diag(client)["scans"], n, timeout)
+
+
+def wait_timeout_check(port: int, timeout: float = 10.0) -> None:
+    """Wait until the server has checked its clients' time-outs at least one frame time-out after this call began.
+
+    The proof for "the server kept this idle connection": a new connection sends the first 4 bytes of a request
+    and nothing more; the server drops it by its frame time-out (--frame-timeout) no earlier than that long after
+    it read them, in the same pass over every client that would have dropped any other connection it meant to.
+    The connection is reset by the server; a hang is a failure after the timeout."""
+    with socket.create_connection(("127.0.0.1", port), timeout=timeout * SLOW) as s:
+        s.sendall(b"\x00\x01\x00\x00")
+        try:
+            while s.recv(4096):
+                pass
+        except ConnectionResetError:
+            pass
+        except socket.timeout:
+            raise AssertionError(f"the server did not drop half a request within {timeout * SLOW:.0f} s") from None
+
+
 def md(words: list[int]) -> int:
     """Two registers, high word first, as a signed 32-bit value."""
     v = words[0] << 16 | words[1]
