@@ -3,10 +3,10 @@ description carries every map signal, state name and reason text, `plc status` a
 politely, and the page's HTTP guards refuse what they must (no PLC needed for these)."""
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 from atc.hmi import mapinfo
+from code_rules import c_enum, c_tokens
 from plc.hmi import status
 from plc.hmi import cli as monitor_cli
 from plc.resources import RUNTIME_SRC
@@ -14,12 +14,24 @@ from plc.resources import RUNTIME_SRC
 REPO = Path(__file__).resolve().parents[2]
 
 
+def diag_offsets(header: str) -> dict[str, int]:
+    """runtime.h's enum diag_offset as status.DIAG names it (DIAG_SCAN_COUNT -> scan_count), read from C tokens."""
+    return {name.removeprefix("DIAG_").lower(): value
+            for name, value in c_enum(c_tokens(header, "runtime.h"), "diag_offset").items()}
+
+
 def test_the_diagnostic_layout_agrees_with_runtime_h():
-    text = (RUNTIME_SRC / "runtime.h").read_text()
-    block = text[text.index("enum diag_offset"):text.index("};", text.index("enum diag_offset"))]
-    offsets = {m.group(1).lower(): int(m.group(2)) for m in re.finditer(r"DIAG_(\w+)\s*=\s*(\d+)", block)}
-    assert offsets, "runtime.h's enum diag_offset not found"
+    offsets = diag_offsets((RUNTIME_SRC / "runtime.h").read_text())
+    assert len(offsets) > 20, offsets
     assert {k: v[0] for k, v in status.DIAG.items()} == offsets
+
+
+def test_the_layout_reader_takes_the_enum_as_c_does():
+    header = ("/* enum diag_offset { DIAG_OLD = 99 }; was the layout */\n"
+              "enum other { DIAG_VERSION = 7 };\n"
+              "enum diag_offset {\n    DIAG_VERSION = 0,    /* DIAG_STATE = 5 in a comment */\n"
+              "    DIAG_STATE,\n    DIAG_SCAN_COUNT = 0x8,\n    DIAG_LAST\n};\n")
+    assert diag_offsets(header) == {"version": 0, "state": 1, "scan_count": 8, "last": 9}
 
 
 def test_the_diagnostic_block_decodes_high_word_first():

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import ast
 import os
-import re
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
 import grimp
+
+from code_rules import c_names, c_tokens
 
 PLC_DIR = Path(__file__).resolve().parents[1]
 SRC = PLC_DIR / "src"
@@ -189,6 +190,15 @@ def test_the_application_registers_its_commands_and_checks_through_the_hook():
     assert ext.preflight and ext.run_setup and ext.parsers
 
 
+def application_names_in_c(text: str, name: str, signals: set[str], addresses: set[str]) -> list[str]:
+    """The application's signal names a C source uses as code (an identifier, a word of a string literal), and the
+    signal addresses its string literals hold; comments are not code (C tokens, code_rules.c_tokens)."""
+    tokens = c_tokens(text, name)
+    strings = [t.text for t in tokens if t.kind == "string"]
+    return [f"{name}: {n}" for n in sorted(signals & c_names(tokens))] + \
+        [f"{name}: the address {a}" for a in sorted(addresses) if any(a in s for s in strings)]
+
+
 def test_the_c_runtime_names_no_signal_of_the_application():
     """The runtime learns the application's signals from what `plc run` hands it (--events FILE, --sim-flag) and
     links the application's events from the application's package (atc/native/events.c)."""
@@ -198,11 +208,20 @@ def test_the_c_runtime_names_no_signal_of_the_application():
     sim = load_map(REPO / "modbus_map" / "map.toml").signal("SimulatedPlant")
     assert len(names) > 50 and sim is not None
     native = SRC / "plc" / "native"
+    address = f"%IX{sim.address // 8}.{sim.address % 8}"
     found = []
     for path in sorted([*native.rglob("*.c"), *native.rglob("*.h")]):
-        text = path.read_text()
-        found += [f"{path.relative_to(SRC)}: {n}" for n in sorted(names) if re.search(rf"\b{n}\b", text)]
-        if f"%IX{sim.address // 8}.{sim.address % 8}" in text:
-            found.append(f"{path.relative_to(SRC)}: the SimulatedPlant address")
+        found += application_names_in_c(path.read_text(), str(path.relative_to(SRC)), names, {address})
     assert found == []
     assert (SRC / "atc" / "native" / "events.c").is_file()
+
+
+def test_the_signal_rule_flags_a_signal_in_code_or_a_string_and_not_in_a_comment():
+    c = ("/* ToolInSpindle and %IX49.7 are the application's; a comment may say so */\n"
+         "static int ToolInSpindleCopy;   // a longer name is another name\n"
+         'static const char *flag = "--sim-flag %IX49.7";\n'
+         "static int ToolInSpindle;\n"
+         'static void say(void) { log_msg("CarouselHomed went TRUE"); }\n')
+    assert application_names_in_c(c, "x.c", {"ToolInSpindle", "CarouselHomed", "SimEStop"}, {"%IX49.7"}) == \
+        ["x.c: CarouselHomed", "x.c: ToolInSpindle", "x.c: the address %IX49.7"]
+    assert application_names_in_c(c.split("\n")[0], "x.c", {"ToolInSpindle"}, {"%IX49.7"}) == []

@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from code_rules import parents_subscripts
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -25,10 +27,21 @@ def test_shipped_files_are_package_data():
 
 
 def test_no_module_reaches_outside_the_package():
+    """Parsed code (ast): no module but plc.resources finds a file by counting folders up (`.parents[n]`)."""
     src = REPO / "plc" / "src" / "plc"
-    offenders = [str(p.relative_to(src)) for p in src.rglob("*.py")
-                 if "parents[" in p.read_text(encoding="utf-8") and p.name != "resources.py"]
+    offenders = [f"{p.relative_to(src)}:{line}" for p in sorted(src.rglob("*.py")) if p.name != "resources.py"
+                 for line in parents_subscripts(p.read_text(encoding="utf-8"), str(p))]
     assert offenders == []
+
+
+def test_the_folder_counting_rule_flags_a_parents_index_and_only_that():
+    snippet = ('from pathlib import Path\n'
+               'ROOT = Path(__file__).resolve().parents[3]\n'
+               'HELP = "never write .parents[2]"  # nor parents[1] in a comment\n'
+               'UP = Path(__file__).parent.parent\n'
+               'def above(p, n):\n'
+               '    return p.parents[n]\n')
+    assert parents_subscripts(snippet) == [2, 6]
 
 
 def test_nothing_machine_local_is_tracked():

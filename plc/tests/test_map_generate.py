@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from code_rules import parse_st, parse_st_files, st_enum_values
 from plc import ast as A
 from plc.diagnostics import Diagnostics
 from plc.driver import compile_sources
@@ -75,13 +76,17 @@ def test_hmi_json_names_the_states_of_enumerated_signals():
     tags = {t["name"]: t for t in doc["tags"]}
     assert [s["name"] for s in tags["IovState"]["states"]] == ["IDLE", "PREPARING", "START_CHANGE", "CHANGING",
                                                                 "WAITING_FOR_ABORT_ACK"]
-    e_atc = (REPO / "st_src" / "app" / "E_AtcState.st").read_text()
-    declared = re.search(r"E_AtcState\s*:\s*\(([^)]*)\)", e_atc).group(1)
-    assert [s["name"] for s in tags["ChangerState"]["states"]] == [v.strip() for v in declared.split(",")]
+    declared = st_enum_values(parse_st_files([REPO / "st_src" / "app" / "E_AtcState.st"], REPO), "E_AtcState")
+    assert len(declared) > 5 and [s["name"] for s in tags["ChangerState"]["states"]] == declared
     reasons = {s["value"]: s["name"] for s in tags["ToolchangerReason"]["states"]}
     assert reasons == {r.code: r.name for r in RMAP.reasons}
     assert {r["code"] for r in doc["reason_codes"]} == {r.code for r in RMAP.reasons}
     assert tags["MbxX"]["scale"] == 0.001
+
+
+def test_the_states_are_read_from_the_enum_declaration_not_its_text():
+    tree = parse_st("TYPE\n    E_Run : (Idle (* first (x) *), Busy, (* a comment, Gone *) Done);\nEND_TYPE\n", "e.st")
+    assert st_enum_values([tree], "E_Run") == ["Idle", "Busy", "Done"]
 
 
 def _ini() -> configparser.ConfigParser:

@@ -8,10 +8,9 @@ goes through the core.
 """
 from __future__ import annotations
 
-import re
-
 import pytest
 
+from code_rules import c_assignments, c_calls, c_tokens
 from harness import SCAN_CORE_C, run_st
 from plc.resources import RUNTIME_SRC, STDLIB
 
@@ -202,19 +201,34 @@ def test_without_forcing_the_hooks_change_nothing():
 
 # --------------------------------------------------------------- one core, every host
 
-def _calls(path) -> str:
-    text = path.read_text()
-    return re.sub(r"/\*.*?\*/", "", text, flags=re.S)
-
-
 @pytest.mark.parametrize("host", ["runtime", "plc test", "scan driver"])
 def test_every_host_runs_the_program_through_the_scan_core(host):
+    """C tokens (code_rules.c_tokens: comments dropped, literals whole): one call of plc_scan_step, and the host
+    never sets the program clock itself (the core writes *clock_ns)."""
     from harness import DRIVER_C
     source = {"runtime": RUNTIME_SRC / "scan.c", "plc test": STDLIB / "test_main.c", "scan driver": DRIVER_C}[host]
-    code = _calls(source)
-    assert "plc_scan_step(" in code, f"{source.name} does not scan through the core"
-    # the host hands run() (or the test body) to the core; it never latches or publishes on its own
-    steps = code.count("plc_scan_step(")
-    assert steps == 1, f"{source.name}: {steps} calls of plc_scan_step"
-    assert "clock_ns =" not in code, f"{source.name} sets the program clock itself"
+    assert host_breaks(source.read_text(), source.name) == []
     assert SCAN_CORE_C.exists()
+
+
+def host_breaks(text: str, name: str) -> list[str]:
+    """How a host's C source breaks the one-core rule: not exactly one call of plc_scan_step (the host hands run(),
+    or the test body, to the core; it never latches or publishes on its own), or an assignment to clock_ns."""
+    tokens = c_tokens(text, name)
+    calls = c_calls(tokens, "plc_scan_step")
+    breaks = [] if len(calls) == 1 else [f"{name}: {len(calls)} calls of plc_scan_step (lines {calls})"]
+    return breaks + [f"{name}:{line}: sets the program clock itself" for line in c_assignments(tokens, "clock_ns")]
+
+
+def test_the_one_core_rule_flags_a_host_that_scans_or_clocks_on_its_own():
+    one_call = ("/* plc_scan_step(&core, 0) ... *clock_ns = 0; in a comment */\n"
+                "int plc_scan_step(plc_scan_t *s, int64_t now);\n"
+                'static const char *what = "plc_scan_step(";\n'
+                "void loop(void) { for (;;) { int rc = plc_scan_step(&core, now); if (rc) break; } }\n")
+    assert host_breaks(one_call, "ok.c") == []
+    assert host_breaks(one_call.replace("if (rc) break;", "if (rc) plc_scan_step(&core, now);"), "twice.c") == \
+        ["twice.c: 2 calls of plc_scan_step (lines [4, 4])"]
+    assert host_breaks("void f(void) {}\n", "none.c") == ["none.c: 0 calls of plc_scan_step (lines [])"]
+    clocked = one_call + "void tick(void) { *core.clock_ns = 5; }\nvoid later(void) { clock_ns++; }\n"
+    assert host_breaks(clocked, "clock.c") == ["clock.c:5: sets the program clock itself",
+                                               "clock.c:6: sets the program clock itself"]

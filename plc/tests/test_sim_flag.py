@@ -1,9 +1,10 @@
 """SimulatedPlant has one home, modbus_map/map.toml; the two things that raise it must agree with it: what
 `plc run` hands the runtime's `--io sim` layer (atc.runsetup: `--sim-flag`; the runtime itself knows no address)
 and the OpenPLC PSM script for demos (configs/openplc/psm_simulated_plant.py), which can only reach
-%IX0.0..%IX49.7."""
+%IX0.0..%IX49.7.  The script is read parsed (ast), not as text."""
 from __future__ import annotations
 
+import ast
 import re
 import subprocess
 from pathlib import Path
@@ -47,11 +48,36 @@ def test_a_sim_flag_outside_the_discrete_inputs_is_a_usage_error():
     assert r.returncode == 2 and "--sim-flag: '%IX100.0' is not a discrete input" in r.stderr
 
 
+def psm_raised(source: str) -> list[int]:
+    """The discrete inputs a PSM script raises, read from its parsed code (ast): module constants holding an
+    "IXbyte.bit" string, named in a psm.set_var(NAME, True) call of update_inputs."""
+    tree = ast.parse(source)
+    names = {t.id: node.value.value for node in tree.body if isinstance(node, ast.Assign)
+             and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)
+             for t in node.targets if isinstance(t, ast.Name)}
+    raised = []
+    for fn in (n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "update_inputs"):
+        for call in (n for n in ast.walk(fn) if isinstance(n, ast.Call)):
+            f, args = call.func, call.args
+            if (isinstance(f, ast.Attribute) and f.attr == "set_var" and isinstance(f.value, ast.Name)
+                    and f.value.id == "psm" and len(args) == 2 and isinstance(args[0], ast.Name)
+                    and isinstance(args[1], ast.Constant) and args[1].value is True):
+                m = re.fullmatch(r"IX(\d+)\.([0-7])", names.get(args[0].id, ""))
+                if m:
+                    raised.append(8 * int(m.group(1)) + int(m.group(2)))
+    return raised
+
+
 def test_the_psm_script_raises_the_map_address():
-    text = (REPO / "configs" / "openplc" / "psm_simulated_plant.py").read_text(encoding="utf-8")
-    m = re.search(r'SIMULATED_PLANT = "IX(\d+)\.(\d)"', text)
-    assert m and 8 * int(m.group(1)) + int(m.group(2)) == SIG.address, m and m.group(0)
-    assert "psm.set_var(SIMULATED_PLANT, True)" in text
+    source = (REPO / "configs" / "openplc" / "psm_simulated_plant.py").read_text(encoding="utf-8")
+    assert psm_raised(source) == [SIG.address]
+
+
+def test_the_psm_reader_takes_the_code_not_its_comments():
+    script = ('import psm\nFLAG = "IX49.6"\nOTHER = "IX1.0"\n# psm.set_var(OTHER, True) in a comment\n'
+              'def update_inputs():\n    psm.set_var(FLAG, True)\n    psm.set_var(OTHER, False)\n')
+    assert psm_raised(script) == [398]
+    assert psm_raised(script.replace("def update_inputs", "def hardware_init")) == []
 
 
 def test_the_simulated_plant_runs_only_when_asked(tmp_path):
