@@ -26,9 +26,8 @@
  *
  * Compile-time knobs (a wrapper file may #define them before #including this
  * one): FIXTURE_BASE_TICK_NS (default 4 ms, Fast = 1 tick, Slow = 5 ticks),
- * FIXTURE_LAYOUT_HASH, FIXTURE_EXTRA_RETAIN (adds a retained variable, which
- * changes the retained layout), FIXTURE_BAD_LOCATED (declares %MW30 as LINT),
- * FIXTURE_ABI_VERSION.
+ * FIXTURE_LAYOUT_HASH, FIXTURE_BAD_LOCATED (declares %MW30 as LINT),
+ * FIXTURE_ABI_VERSION.  (A retained layout that changes is tests/c_unit/test_retain.c's.)
  */
 #define _POSIX_C_SOURCE 200809L      /* clock_gettime */
 #include <stddef.h>
@@ -93,9 +92,6 @@ static struct {
 static int16_t keep;
 static uint32_t scans;
 static uint16_t slow;
-#ifdef FIXTURE_EXTRA_RETAIN
-static int32_t extra;
-#endif
 static int64_t clock_ns;
 static plc_fault_t fault;
 
@@ -134,9 +130,6 @@ static const plc_var_t vars[] = {
     { "CONFIG0.RES0.MAIN.KEEP", PLC_T_INT, 1, 0, &keep, sizeof keep, "INT" },
     { "CONFIG0.RES0.MAIN.SCANS", PLC_T_UDINT, 1, 0, &scans, sizeof scans, "UDINT" },
     { "CONFIG0.RES0.MAIN.SLOW", PLC_T_UINT, 0, 0, &slow, sizeof slow, "UINT" },
-#ifdef FIXTURE_EXTRA_RETAIN
-    { "CONFIG0.RES0.MAIN.EXTRA", PLC_T_DINT, 1, 0, &extra, sizeof extra, "DINT" },
-#endif
 };
 
 static void fixture_init(void)
