@@ -197,6 +197,30 @@ def test_a_missing_config_file(tmp_path):
         runtime.load_config(tmp_path / "absent.toml")
 
 
+def test_mistakes_of_two_sections_are_reported_together_a_misspelt_key_with_its_right_name(tmp_path):
+    """The run configuration is checked by its schema (runtime.RUN_CONFIG): a misspelt key of [modbus] and a bad
+    value of [monitor] are one report, in file order, the misspelling answered with the key it resembles."""
+    cfg_file = tmp_path / "plc.toml"
+    cfg_file.write_text('[modbus]\nprot = 5020\n\n[monitor]\nenabled = "yes"\n')
+    with pytest.raises(runtime.ConfigError) as e:
+        runtime.load_config(cfg_file)
+    assert e.value.problems == [
+        f"{cfg_file}:2:1: error: [modbus] unknown key 'prot' (did you mean 'port'?)",
+        f"{cfg_file}:5:1: error: [monitor] enabled: expected true or false, got 'yes'"]
+    assert str(e.value).startswith(f"2 problem(s) in the run configuration {cfg_file}:\n")
+
+
+def test_a_command_line_option_is_checked_as_its_configuration_key(tmp_path):
+    parser = argparse.ArgumentParser()
+    runtime.add_run_arguments(parser)
+    for argv, message in ((["--bind", "localhost"], "--bind: 'localhost' is not an IPv4 address"),
+                          (["--port", "70000"], "--port: expected an integer 0..65535, got 70000"),
+                          (["--sim-flag", "%IX100.0"], "--sim-flag: expected a discrete input %IX0.0..%IX99.7")):
+        with pytest.raises(runtime.ConfigError) as e:
+            runtime.prepare_run(parser.parse_args(argv), tmp_path / "program.c")
+        assert str(e.value).startswith(message), str(e.value)
+
+
 # ------------------------------------------------------------------------ plc run
 
 def plc_run(*args: str) -> h.Runtime:

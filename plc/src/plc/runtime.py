@@ -62,6 +62,7 @@ from typing import Any, Sequence
 
 from . import io_config, project, tomlconf
 from .diagnostics import Diagnostic
+from .tomlconf import Bool, Check, Field, Int, Invalid, OneOf, Table
 from .extensions import RunSetup
 from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
 
@@ -227,61 +228,110 @@ class RunConfig:
     sim_flag: str | None = None                      # [io] sim_flag / --sim-flag: %IXa.b held TRUE by --io sim
 
 
-_KEYS = {
-    "modbus": {"bind", "port", "max_clients", "frame_timeout_ms", "read_only", "allow", "writable_coils",
-               "writable_registers"},
-    "io": {"layer", "device", "sim_flag"},
-    "retain": {"file", "interval_ms", "registers"},
-    "scan": {"realtime", "rt_priority", "cpu", "cpu_latency_us", "status_interval_s", "watchdog_ms"},
-    "monitor": {"enabled", "socket", "token_file", "audit_file"},
-}
+def _ranges(limit: int) -> Check:
+    """Addresses and ranges "FIRST-LAST" of 0..limit-1 (one string or a list), normalised to "FIRST-LAST"."""
+    def check(value: Any) -> list[str]:
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, list):
+            raise Invalid(f"expected a list of ranges like [\"400-799\"], got {value!r}")
+        out = []
+        for item in value:
+            text = str(item).strip() if isinstance(item, (str, int)) and not isinstance(item, bool) else None
+            lo_text, _, hi_text = (text or "").partition("-")
+            if text is None or not lo_text.strip().isdigit() or (hi_text and not hi_text.strip().isdigit()):
+                raise Invalid(f"{item!r} is not an address or a range 'FIRST-LAST'")
+            lo = int(lo_text)
+            hi = int(hi_text) if hi_text else lo
+            if lo > hi or hi >= limit:
+                raise Invalid(f"range {item!r} is outside 0-{limit - 1}")
+            out.append(f"{lo}-{hi}")
+        return out
+    return Check(check, f"ranges of 0-{limit - 1}")
 
 
-def _check_ranges(where: str, value: Any, limit: int) -> list[str]:
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list):
-        raise ConfigError(f"{where}: expected a list of ranges like [\"400-799\"], got {value!r}")
-    out = []
-    for item in value:
-        text = str(item).strip() if isinstance(item, (str, int)) and not isinstance(item, bool) else None
-        if text is None:
-            raise ConfigError(f"{where}: {item!r} is not an address or a range 'FIRST-LAST'")
-        lo_text, _, hi_text = text.partition("-")
-        if not lo_text.strip().isdigit() or (hi_text and not hi_text.strip().isdigit()):
-            raise ConfigError(f"{where}: {item!r} is not an address or a range 'FIRST-LAST'")
-        lo = int(lo_text)
-        hi = int(hi_text) if hi_text else lo
-        if lo > hi or hi >= limit:
-            raise ConfigError(f"{where}: range {item!r} is outside 0-{limit - 1}")
-        out.append(f"{lo}-{hi}")
-    return out
-
-
-def _check_int(where: str, value: Any, lo: int, hi: int) -> int:
-    if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
-        raise ConfigError(f"{where}: expected an integer {lo}..{hi}, got {value!r}")
-    return value
-
-
-def _check_bool(where: str, value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ConfigError(f"{where}: expected true or false, got {value!r}")
-    return value
-
-
-def check_bind(where: str, value: Any) -> str:
+def _ipv4(value: Any) -> str:
     try:
         return str(ipaddress.IPv4Address(value))
     except (ipaddress.AddressValueError, ValueError, TypeError):
-        raise ConfigError(f"{where}: {value!r} is not an IPv4 address") from None
+        raise Invalid(f"{value!r} is not an IPv4 address") from None
 
 
-def check_allow(where: str, value: Any) -> str:
+def _network(value: Any) -> str:
     try:
         return str(ipaddress.IPv4Network(value, strict=False))
     except (ipaddress.AddressValueError, ipaddress.NetmaskValueError, ValueError, TypeError):
-        raise ConfigError(f"{where}: {value!r} is not an IPv4 address or ADDR/BITS") from None
+        raise Invalid(f"{value!r} is not an IPv4 address or ADDR/BITS") from None
+
+
+def _allow_list(value: Any) -> list[str]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list):
+        raise Invalid("expected a list of addresses")
+    if len(value) > 32:
+        raise Invalid("at most 32 entries")
+    return [_network(a) for a in value]
+
+
+def _discrete_input(value: Any) -> str:
+    """A discrete input of OpenPLC's map written %IXa.b (a 0..99, b 0..7)."""
+    m = re.fullmatch(r"%IX(\d{1,2})\.([0-7])", value) if isinstance(value, str) else None
+    if m is None:
+        raise Invalid(f"expected a discrete input %IX0.0..%IX99.7, got {value!r}")
+    return value
+
+
+def _file_name(value: Any) -> Path:
+    if not isinstance(value, str) or not value:
+        raise Invalid("expected a file name")
+    return Path(value)
+
+
+def _seconds(value: Any) -> float:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
+        raise Invalid("expected a number of seconds >= 0.1")
+    return float(value)
+
+
+IPV4, DISCRETE_INPUT, FILE_NAME = Check(_ipv4, "an IPv4 address"), Check(_discrete_input), Check(_file_name)
+
+# The run configuration's schema: section -> its keys.  Where a key sets a RunConfig field of another name,
+# _FIELD_OF says which; a file name is relative to the configuration's directory.
+RUN_CONFIG = {
+    "modbus": Table((
+        Field("bind", IPV4, "IPv4 address to listen on"),
+        Field("port", Int(0, 65535), "Modbus/TCP port"),
+        Field("max_clients", Int(1, 256)),
+        Field("frame_timeout_ms", Int(1, 3600000), "a request begun must be complete within this"),
+        Field("read_only", Bool(), "every write function code answered with exception 01"),
+        Field("allow", Check(_allow_list), "client addresses or networks (empty: any client)"),
+        Field("writable_coils", _ranges(COILS), "coils a client may write"),
+        Field("writable_registers", _ranges(HOLDING_REGISTERS), "holding registers a client may write"))),
+    "io": Table((
+        Field("layer", OneOf(IO_LAYERS), "the I/O layer"),
+        Field("device", Check(lambda v: v), "[[io.device]]: the remote I/O of layer modbus (io_config)"),
+        Field("sim_flag", DISCRETE_INPUT, "%IXa.b held TRUE by --io sim"))),
+    "retain": Table((
+        Field("file", FILE_NAME, "the retained data"),
+        Field("interval_ms", Int(0, 3600000), "minimum time between two saves"),
+        Field("registers", _ranges(HOLDING_REGISTERS), "holding registers saved with the RETAIN variables"))),
+    "scan": Table((
+        Field("realtime", Bool(), "ask for SCHED_FIFO"),
+        Field("rt_priority", Int(1, 99)),
+        # the machine that runs it may not be this one: the runtime checks the CPU is online
+        Field("cpu", Int(0, MAX_CPU), "pin the scan thread to this CPU"),
+        Field("cpu_latency_us", Int(0, 2000000000), "PM QoS: no CPU idle state slower to wake than this"),
+        Field("status_interval_s", Check(_seconds), "status log line period when not on a terminal"),
+        Field("watchdog_ms", Int(0, 3600000), "longest run() call before outputs are forced safe (0 = off)"))),
+    "monitor": Table((
+        Field("enabled", Bool(), "watch, write and force over a Unix socket"),
+        Field("socket", FILE_NAME), Field("token_file", FILE_NAME), Field("audit_file", FILE_NAME))),
+}
+_FIELD_OF = {("io", "layer"): "io", ("retain", "file"): "retain_file", ("retain", "interval_ms"): "retain_interval_ms",
+             ("retain", "registers"): "retain_registers", ("monitor", "enabled"): "monitor",
+             ("monitor", "socket"): "monitor_socket"}
+_NOT_FIELDS = {("io", "device")}
 
 
 def load_config(path: Path) -> RunConfig:
@@ -293,47 +343,17 @@ def load_config(path: Path) -> RunConfig:
     except tomlconf.TomlError as exc:
         d = exc.diagnostic
         raise ConfigError(f"{path}: {d.message}" if d.line == 0 else one_line(d)) from None
-    data = doc.data
     cfg = RunConfig()
-
-    def check(section: str, key: str, fn, *args):
-        """fn(where, value, *args), its ConfigError recorded at the key's position; None on a problem."""
-        try:
-            return fn(f"[{section}] {key}", data[section][key], *args)
-        except ConfigError as exc:
-            doc.error((section, key), str(exc))
-            return None
-
-    for section, table in data.items():
-        if section not in _KEYS:
-            doc.error((section,), f"unknown section [{section}] (known: " + ", ".join(f"[{s}]" for s in _KEYS) + ")")
-        elif not isinstance(table, dict):
-            doc.error((section,), f"'{section}' must be a section [{section}]")
-        else:
-            for key in table:
-                if key not in _KEYS[section]:
-                    doc.error((section, key), f"[{section}] unknown key '{key}' (known: "
-                             + ", ".join(sorted(_KEYS[section])) + ")")
-    tables = {s: t for s, t in data.items() if s in _KEYS and isinstance(t, dict)}
-    data = tables
-
-    modbus = data.get("modbus", {})
-    for key, fn, args in (("bind", check_bind, ()), ("port", _check_int, (0, 65535)),
-                          ("max_clients", _check_int, (1, 256)), ("frame_timeout_ms", _check_int, (1, 3600000)),
-                          ("read_only", _check_bool, ()), ("allow", _check_allow_list, ()),
-                          ("writable_coils", _check_ranges, (COILS,)),
-                          ("writable_registers", _check_ranges, (HOLDING_REGISTERS,))):
-        if key in modbus:
-            value = check("modbus", key, fn, *args)
-            if value is not None:
-                setattr(cfg, key, value)
-
-    io = data.get("io", {})
-    if "layer" in io:
-        cfg.io = check("io", "layer", _check_layer) or cfg.io
-        cfg.io_chosen = True
-    if "sim_flag" in io:
-        cfg.sim_flag = check("io", "sim_flag", check_discrete_input) or cfg.sim_flag
+    checked = tomlconf.check_sections(doc, RUN_CONFIG)
+    for section, values in checked.items():
+        for key, value in values.values.items():
+            if (section, key) in _NOT_FIELDS:
+                continue
+            if isinstance(value, Path) and not value.is_absolute():
+                value = Path(os.path.normpath(path.parent / value))
+            setattr(cfg, _FIELD_OF.get((section, key), key), value)
+    io = doc.data.get("io") if isinstance(doc.data.get("io"), dict) else {}
+    cfg.io_chosen = "layer" in io
     if "device" in io:
         before = len(doc.errors)
         devices = io_config.check_devices(doc, io["device"])
@@ -342,37 +362,6 @@ def load_config(path: Path) -> RunConfig:
             cfg.devices = devices
     if cfg.io == "modbus" and "device" not in io:
         doc.error(("io", "layer"), "[io] layer: layer \"modbus\" needs at least one [[io.device]]")
-
-    retain = data.get("retain", {})
-    if "file" in retain:
-        name = check("retain", "file", _check_file_name)
-        if name is not None:
-            cfg.retain_file = name if name.is_absolute() else Path(os.path.normpath(path.parent / name))
-    if "interval_ms" in retain:
-        value = check("retain", "interval_ms", _check_int, 0, 3600000)
-        cfg.retain_interval_ms = cfg.retain_interval_ms if value is None else value
-    if "registers" in retain:
-        cfg.retain_registers = check("retain", "registers", _check_ranges, HOLDING_REGISTERS) or []
-
-    scan = data.get("scan", {})
-    for key, fn, args in (("realtime", _check_bool, ()), ("rt_priority", _check_int, (1, 99)),
-                          # the machine that runs it may not be this one: the runtime checks the CPU is online
-                          ("cpu", _check_int, (0, MAX_CPU)), ("cpu_latency_us", _check_int, (0, 2000000000)),
-                          ("status_interval_s", _check_seconds, ()), ("watchdog_ms", _check_int, (0, 3600000))):
-        if key in scan:
-            value = check("scan", key, fn, *args)
-            if value is not None:
-                setattr(cfg, key, value)
-
-    monitor = data.get("monitor", {})
-    if "enabled" in monitor:
-        value = check("monitor", "enabled", _check_bool)
-        cfg.monitor = cfg.monitor if value is None else value
-    for key, attr in (("socket", "monitor_socket"), ("token_file", "token_file"), ("audit_file", "audit_file")):
-        if key in monitor:
-            value = check("monitor", key, _check_file_name)
-            if value is not None:
-                setattr(cfg, attr, value if value.is_absolute() else Path(os.path.normpath(path.parent / value)))
     if doc.errors:
         problems = [one_line(d) for d in doc.in_file_order()]
         raise ConfigError(f"{len(problems)} problem(s) in the run configuration {path}:\n" + "\n".join(problems),
@@ -383,6 +372,14 @@ def load_config(path: Path) -> RunConfig:
 def one_line(d: Diagnostic) -> str:
     """A problem of the run configuration as one line, `file:line:col: error: message (hint)`."""
     return f"{d.where()}: {d.severity}: {d.message}" + (f" ({d.hint})" if d.hint else "")
+
+
+def option(where: str, kind: tomlconf.Kind, value: Any) -> Any:
+    """A command-line option checked as its configuration key is: ConfigError `--port: expected ...`."""
+    try:
+        return kind.check(value)
+    except Invalid as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def apply_application(cfg: RunConfig, setup: RunSetup, where: object) -> None:
@@ -424,42 +421,6 @@ def stop_level_problems(cfg: RunConfig, levels: dict[int, tuple[bool, str]]) -> 
                                f"{'true' if safe else 'false'} when stopped, but {why}: its stop level is "
                                f"{'true' if level else 'false'}; set its `safe` value")
     return out
-
-
-def check_discrete_input(where: str, value: Any) -> str:
-    """A discrete input of OpenPLC's map written %IXa.b (a 0..99, b 0..7)."""
-    m = re.fullmatch(r"%IX(\d{1,2})\.([0-7])", value) if isinstance(value, str) else None
-    if m is None:
-        raise ConfigError(f"{where}: expected a discrete input %IX0.0..%IX99.7, got {value!r}")
-    return value
-
-
-def _check_layer(where: str, value: Any) -> str:
-    if value not in IO_LAYERS:
-        raise ConfigError(f"{where}: expected one of " + ", ".join(f'"{n}"' for n in IO_LAYERS) + f", got {value!r}")
-    return value
-
-
-def _check_file_name(where: str, value: Any) -> Path:
-    if not isinstance(value, str) or not value:
-        raise ConfigError(f"{where}: expected a file name")
-    return Path(value)
-
-
-def _check_seconds(where: str, value: Any) -> float:
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0.1:
-        raise ConfigError(f"{where}: expected a number of seconds >= 0.1")
-    return float(value)
-
-
-def _check_allow_list(where: str, value: Any) -> list[str]:
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list):
-        raise ConfigError(f"{where}: expected a list of addresses")
-    if len(value) > 32:
-        raise ConfigError(f"{where}: at most 32 entries")
-    return [check_allow(where, a) for a in value]
 
 
 def ensure_token(path: Path) -> None:
@@ -566,9 +527,9 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     """Check the configuration, build the runtime; return the command to execute."""
     cfg = load_config(args.config) if args.config else RunConfig()
     if args.bind is not None:
-        cfg.bind = check_bind("--bind", args.bind)
+        cfg.bind = option("--bind", IPV4, args.bind)
     if args.port is not None:
-        cfg.port = _check_int("--port", args.port, 0, 65535)
+        cfg.port = option("--port", Int(0, 65535), args.port)
     if args.io is not None:
         cfg.io, cfg.io_chosen = args.io, True
     if cfg.io == "modbus" and not cfg.io_devices:
@@ -584,7 +545,7 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     if getattr(args, "no_monitor", False):
         cfg.monitor = False
     if getattr(args, "sim_flag", None) is not None:
-        cfg.sim_flag = check_discrete_input("--sim-flag", args.sim_flag)
+        cfg.sim_flag = option("--sim-flag", DISCRETE_INPUT, args.sim_flag)
     setup = getattr(args, "run_setup", None) or RunSetup()
     cfg.events_file = setup.events_file
     apply_application(cfg, setup, args.config or "the run configuration")
