@@ -192,3 +192,19 @@ def test_a_bad_q_value_for_one_tool_is_reported_with_that_tool(tmp_path):
     run = run_cli("check", tmp_path / "sequences.toml")
     (error,) = run.diagnostics()
     assert error["msg"] == "the WAITIN timeout must be greater than 0 ms, got 0 (from Q1 for tool 2)"
+
+
+def test_every_mistake_of_an_index_is_reported_in_one_run_each_at_its_key(tmp_path):
+    """The index is read by the toolchain's one TOML reader and checked by its schema (atc.seq.index.SECTIONS):
+    a misspelt key, a tool count out of range and an unknown section are three errors of one run."""
+    (tmp_path / "home.seq").write_text("HOME ROTARY\n")
+    (tmp_path / "sequences.toml").write_text(
+        '[machine]\ntools = 99\nalways_use_tol1 = true\n[io]\ninputs = [0]\noutputs = [0]\n'
+        '[sequences]\nhome = "home.seq"\n[vaules]\nP1 = 1\n')
+    diags = Diagnostics()
+    load_index(tmp_path / "sequences.toml", "sequences.toml", diags)
+    assert [(d.line, d.col, d.message, d.hint) for d in diags.sorted()] == [
+        (2, 1, "[machine] tools: expected an integer 1..50, got 99", None),
+        (3, 1, "[machine] unknown key 'always_use_tol1'", "did you mean 'always_use_tool1'?"),
+        (9, 2, "unknown section [vaules]", "did you mean [values]?"),
+    ]

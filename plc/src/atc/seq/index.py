@@ -21,27 +21,49 @@ kind and the P/Q values. Its format is described in docs/sequences.md; a short e
     P1 = -5.0
     T2Q1 = 60
 
-tomllib gives no positions, so `_locate_keys` finds the line of each `key =` and `[table]` for diagnostics.
+The index is read with the toolchain's one TOML reader (plc.tomlconf): every problem is reported at once, at the
+line and column of its key, the fixed tables checked by their schema (unknown keys with a did-you-mean).
 """
 
 from __future__ import annotations
 
-import difflib
 import re
-import tomllib
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
 
+from plc import tomlconf
+from plc.diagnostics import SEQ
+from plc.tomlconf import Bool, Check, Field, Int, Invalid, Str, Table
+
 from .diagnostics import Diagnostics, format_ranges
 from .encoding import AXES, DINT_MAX, IO_CHANNELS, MAX_TOOLS, P_COUNT, Q_COUNT, SCALE, Kind
 
-_ALLOWED_KEYS = {
-    (): {"machine", "io", "sequences", "values"},
-    ("machine",): {"name", "tools", "axes", "always_use_tool1"},
-    ("io",): {"inputs", "outputs"},
-    ("sequences",): {kind.key for kind in Kind},
-}
+def _axes(value: object) -> str:
+    """Distinct letters of AXES (either case), in AXES order."""
+    if not isinstance(value, str) or not value or any(a not in AXES for a in value.upper()) \
+            or len(set(value.upper())) != len(value):
+        raise Invalid(f"expected distinct letters of {AXES}, got {value!r}")
+    return "".join(a for a in AXES if a in value.upper())
+
+
+_LISTED = Check(lambda v: v)     # checked item by item by the reader (channel lists, sequence entries)
+_CHANNELS_HINT = 'e.g. {key} = ["16-23"]; channel n is %{prefix}(n/8).(n mod 8)'
+
+MACHINE = Table((
+    Field("name", Str(), "the machine's name", default=""),
+    Field("tools", Int(1, MAX_TOOLS), f"the number of tools, 1..{MAX_TOOLS}", required=True),
+    Field("axes", Check(_axes), "the axes sequences may move", default="XYZ"),
+    Field("always_use_tool1", Bool(), "every tool runs tool 1's Put and Get sequences", default=False),
+))
+IO = Table((
+    Field("inputs", _LISTED, "the inputs sequences may use", required=True,
+          hint=_CHANNELS_HINT.format(key="inputs", prefix="IX")),
+    Field("outputs", _LISTED, "the outputs sequences may use", required=True,
+          hint=_CHANNELS_HINT.format(key="outputs", prefix="QX")),
+))
+SEQUENCES = Table(tuple(Field(kind.key, _LISTED, f"the {kind.title} sequence") for kind in Kind))
+SECTIONS = {"machine": MACHINE, "io": IO, "sequences": SEQUENCES, "values": None}
 
 _PKEY = re.compile(r"P(\d+)")
 _QKEY = re.compile(r"T(\d+)Q(\d+)")
@@ -109,77 +131,32 @@ class SequenceSet:
 
 
 class _IndexReader:
-    """Validates the parsed TOML table by table, reporting at the line of each key."""
+    """Validates the parsed TOML table by table, reporting at the key of each problem."""
 
-    def __init__(self, path: Path, name: str, text: str, diags: Diagnostics):
+    def __init__(self, path: Path, doc: tomlconf.Document, diags: Diagnostics):
         self.path = path
-        self.name = name
-        self.lines = text.splitlines()
-        self.positions = _locate_keys(self.lines)
+        self.doc = doc
         self.diags = diags
 
     def error(self, key: tuple[str, ...], message: str, hint: str = "") -> None:
-        line, col, width = self._position(key)
-        source = self.lines[line - 1] if line > 0 else ""
-        self.diags.error(self.name, line, col, message, hint=hint, source_line=source, width=width)
+        self.doc.error(key, message, hint)
 
     def warning(self, key: tuple[str, ...], message: str, hint: str = "") -> None:
-        line, col, width = self._position(key)
-        source = self.lines[line - 1] if line > 0 else ""
-        self.diags.warning(self.name, line, col, message, hint=hint, source_line=source, width=width)
+        self.doc.warning(key, message, hint)
 
-    def _position(self, key: tuple[str, ...]) -> tuple[int, int, int]:
-        for n in range(len(key), 0, -1):
-            if key[:n] in self.positions:
-                line, col = self.positions[key[:n]]
-                return line, col, len(key[n - 1])
-        return 0, 0, 1
+    def machine(self, checked: tomlconf.Checked | None) -> tuple[str, int, str | None, bool]:
+        if checked is None:
+            return "", 0, None, False
+        # a wrong axes value leaves them unknown: the axis checks are skipped rather than repeated at every MOVEABS
+        axes = None if "axes" in checked.bad else checked["axes"]
+        return checked["name"], checked.get("tools", 0), axes, checked["always_use_tool1"]
 
-    # --- tables ---
-    def unknown_keys(self, table: dict, where: tuple[str, ...]) -> None:
-        allowed = _ALLOWED_KEYS[where]
-        for key in table:
-            if key not in allowed:
-                close = difflib.get_close_matches(key, sorted(allowed), n=1)
-                hint = f"did you mean '{close[0]}'?" if close else "known keys: " + ", ".join(sorted(allowed))
-                label = f"[{'.'.join(where)}]" if where else "the index"
-                self.error(where + (key,), f"unknown key '{key}' in {label}", hint)
-
-    def machine(self, table: dict) -> tuple[str, int, str | None, bool]:
-        self.unknown_keys(table, ("machine",))
-        name = table.get("name", "")
-        if not isinstance(name, str):
-            self.error(("machine", "name"), "[machine] name must be a string")
-            name = ""
-        tools = table.get("tools")
-        if tools is None:
-            self.error(("machine",), f"[machine] needs 'tools', the number of tools (1..{MAX_TOOLS})")
-            tools = 0
-        elif isinstance(tools, bool) or not isinstance(tools, int) or not 1 <= tools <= MAX_TOOLS:
-            self.error(("machine", "tools"), f"[machine] tools must be a whole number 1..{MAX_TOOLS}, got {tools!r}")
-            tools = 0
-        axes = table.get("axes", "XYZ")
-        if not isinstance(axes, str) or not axes or any(a not in AXES for a in axes.upper()) \
-                or len(set(axes.upper())) != len(axes):
-            self.error(("machine", "axes"), f"[machine] axes must be distinct letters of {AXES}, got {axes!r}")
-            axes = None  # unknown: the axis checks are skipped rather than repeated at every MOVEABS
-        always = table.get("always_use_tool1", False)
-        if not isinstance(always, bool):
-            self.error(("machine", "always_use_tool1"), "[machine] always_use_tool1 must be true or false")
-            always = False
-        return name, tools, None if axes is None else "".join(a for a in AXES if a in axes.upper()), always
-
-    def io(self, table: dict) -> IoMap:
-        self.unknown_keys(table, ("io",))
+    def io(self, table: dict | None) -> IoMap:
+        if table is None:
+            return IoMap(None, None)
         channels: dict[str, frozenset[int] | None] = {}
         for key in ("inputs", "outputs"):
-            if key not in table:
-                prefix = "IX" if key == "inputs" else "QX"
-                self.error(("io",), f"[io] needs '{key}', the {key} sequences may use",
-                           hint=f'e.g. {key} = ["16-23"]; channel n is %{prefix}(n/8).(n mod 8)')
-                channels[key] = None
-            else:
-                channels[key] = frozenset(self.channel_list(table[key], ("io", key)))
+            channels[key] = frozenset(self.channel_list(table[key], ("io", key))) if key in table else None
         return IoMap(channels["inputs"], channels["outputs"])
 
     def channel_list(self, items: object, key: tuple[str, ...]) -> set[int]:
@@ -204,7 +181,6 @@ class _IndexReader:
         return channels
 
     def sequences(self, table: dict, tools: int, always: bool) -> list[SequenceRef]:
-        self.unknown_keys(table, ("sequences",))
         refs: list[SequenceRef] = []
         for kind in Kind:
             entry = table.get(kind.key)
@@ -243,7 +219,8 @@ class _IndexReader:
             if always and tool != 1:
                 self.warning(key, f"always_use_tool1 = true: the {kind.title} sequence of tool {tool} is never used")
         path = self.path.parent / file
-        line, col = self.positions.get(key, (0, 0))
+        place = self.doc.places.get(key)
+        line, col = (place.key.line, place.key.col) if place else (0, 0)
         return SequenceRef(kind, tool, file, path, line, col)
 
     def values(self, table: dict, tools: int) -> Values:
@@ -292,30 +269,6 @@ def _tool_sort_key(key: str) -> tuple[int, str]:
     return (int(key), "") if key.isdigit() else (MAX_TOOLS + 1, key)
 
 
-def _locate_keys(lines: list[str]) -> dict[tuple[str, ...], tuple[int, int]]:
-    """(table..., key) -> (line, col) for `[table]` headers and `key = value` lines; enough for our simple files."""
-    positions: dict[tuple[str, ...], tuple[int, int]] = {}
-    table: tuple[str, ...] = ()
-    for line_no, raw in enumerate(lines, start=1):
-        stripped = raw.strip()
-        col = len(raw) - len(raw.lstrip()) + 1
-        if not stripped or stripped.startswith("#"):
-            continue
-        if stripped.startswith("[") and not stripped.startswith("[["):
-            header = stripped[1:stripped.find("]")] if "]" in stripped else stripped[1:]
-            table = tuple(part.strip().strip("\"'") for part in header.split("."))
-            positions.setdefault(table, (line_no, col + 1))
-        elif "=" in stripped:
-            key = tuple(part.strip().strip("\"'") for part in stripped.split("=", 1)[0].split("."))
-            positions.setdefault(table + key, (line_no, col))
-    return positions
-
-
-def _toml_error_position(message: str) -> tuple[int, int]:
-    match = re.search(r"line (\d+), column (\d+)", message)
-    return (int(match[1]), int(match[2])) if match else (0, 0)
-
-
 def load_index(path: Path, name: str, diags: Diagnostics) -> SequenceSet | None:
     """Read and validate an index; None when it cannot be read or parsed at all (the reason is in diags)."""
     try:
@@ -324,32 +277,29 @@ def load_index(path: Path, name: str, diags: Diagnostics) -> SequenceSet | None:
         diags.error(name, 0, 0, f"cannot read the index: {getattr(exc, 'strerror', None) or exc}")
         return None
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        line, col = _toml_error_position(str(exc))
-        lines = text.splitlines()
-        source = lines[line - 1] if 0 < line <= len(lines) else ""
-        message = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
-        diags.error(name, line, col, f"bad TOML: {message}", source_line=source)
+        doc = tomlconf.parse(text, name, layout=SEQ, show_source=True, unplaced=(0, 0), anchor="key")
+    except tomlconf.TomlError as exc:
+        diags.add(exc.diagnostic)
         return None
-    reader = _IndexReader(path, name, text, diags)
-    reader.unknown_keys(data, ())
+    reader = _IndexReader(path, doc, diags)
+    data = doc.data
+    checked = tomlconf.check_sections(doc, SECTIONS)
     for table in ("machine", "io", "sequences"):
-        if not isinstance(data.get(table), dict):
+        if table not in data:
             reader.error((), f"the index needs a [{table}] table")
-    machine = data.get("machine") if isinstance(data.get("machine"), dict) else {}
-    io_table = data.get("io") if isinstance(data.get("io"), dict) else None
+    io_table = data["io"] if isinstance(data.get("io"), dict) else None
     seq_table = data.get("sequences") if isinstance(data.get("sequences"), dict) else {}
     values_table = data.get("values", {})
     if not isinstance(values_table, dict):
-        reader.error(("values",), "[values] must be a table of P/Q variables")
-        values_table = {}
-    set_name, tools, axes, always = reader.machine(machine) if machine or "machine" in data else ("", 0, None, False)
-    io = reader.io(io_table) if io_table is not None else IoMap(None, None)
+        values_table = {}                   # check_sections: 'values' must be a section [values]
+    set_name, tools, axes, always = reader.machine(checked.get("machine"))
+    io = reader.io(io_table)
     refs = reader.sequences(seq_table, tools, always)
     values = reader.values(values_table, tools)
     seqset = SequenceSet(path, name, set_name, tools, axes, always, io, values, refs)
     _check_coverage(seqset, reader, seq_table)
+    for d in doc.diagnostics:
+        diags.add(d)
     return seqset
 
 
