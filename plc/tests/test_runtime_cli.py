@@ -155,7 +155,7 @@ def test_defaults_and_empty_writable_lists():
     ("[retain]\ninterval_ms = -1\n", "[retain] interval_ms: expected an integer"),
     ("[retain]\nregisters = [\"8192\"]\n", "[retain] registers: range '8192' is outside 0-8191"),
     ("[scan]\nrealtime = \"yes\"\n", "[scan] realtime: expected true or false"),
-    ("[scan]\nrt_priority = 100\n", "[scan] rt_priority: expected an integer 1..99"),
+    ("[scan]\nrt_priority = 99\n", "[scan] rt_priority: expected an integer 1..98"),
     ("[scan]\ncpu = -1\n", "[scan] cpu: expected an integer 0..1023, got -1"),
     ("[scan]\ncpu = 1024\n", "[scan] cpu: expected an integer 0..1023, got 1024"),
     ("[scan]\ncpu = \"1\"\n", "[scan] cpu: expected an integer 0..1023, got '1'"),

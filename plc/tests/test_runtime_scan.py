@@ -95,11 +95,22 @@ def test_status_line_on_a_terminal_and_as_log_lines(binary):
 def test_realtime_scheduling_is_used_or_reported_once(binary):
     rc, err = run_to_end(binary, "--port", "0", "--status", "off", "--duration", "0.3")
     assert rc == 0, err
-    lines = [l for l in err.splitlines()
-             if ("SCHED_FIFO" in l or "real-time scheduling not permitted" in l) and "modbus:" not in l]
-    assert len(lines) == 1, err
-    server = [l for l in err.splitlines() if "modbus: server thread" in l]   # SCHED_FIFO below the scan, or not
-    assert len(server) == 1, err
+    lines = err.splitlines()
+    scan = [ln for ln in lines if "scan thread is SCHED_FIFO" in ln or "real-time scheduling not permitted" in ln]
+    assert len(scan) == 1, err
+    for thread in ("modbus: server thread", "watchdog: thread"):    # SCHED_FIFO below/above the scan, or why not
+        assert len([ln for ln in lines if thread in ln]) == 1, err
+
+
+@pytest.fixture(params=["no-rt", "SCHED_FIFO"])
+def scheduling(request, binary) -> tuple[str, ...]:
+    """The scheduling options of a test run both ways: --no-rt, and SCHED_FIFO where the machine permits it."""
+    if request.param == "no-rt":
+        return ("--no-rt",)
+    refused = h.realtime_refused(binary)
+    if refused:
+        pytest.skip(f"SCHED_FIFO not permitted on this machine: {refused}")
+    return ()
 
 
 def scans_go_on(c: h.Client, n: int = 10) -> None:
@@ -240,8 +251,8 @@ def test_a_program_fault_stops_it_with_outputs_safe_while_modbus_answers(binary)
         assert c.read_holding(1024 + 300) == [99]
 
 
-def test_the_watchdog_forces_outputs_safe_when_run_never_returns(binary):
-    rt = h.Runtime(binary, "--no-rt", "--watchdog", "300").start()
+def test_the_watchdog_forces_outputs_safe_when_run_never_returns(binary, scheduling):
+    rt = h.Runtime(binary, *scheduling, "--watchdog", "300").start()
     try:
         with h.Client(rt.port) as c:
             c.write_register(512, 10)
@@ -254,17 +265,22 @@ def test_the_watchdog_forces_outputs_safe_when_run_never_returns(binary):
             assert c.read_coils(0, 800) == [False] * 800
             assert c.read_holding(1) == [11]                     # status words stay readable
             assert c.read_holding(1024 + 30) == [4242]           # Modbus keeps answering
+            # a SCHED_FIFO scan stuck in run() is lowered so that the threads below it run
+            assert ("the stuck scan thread lowered to SCHED_IDLE" in rt.log) == (not scheduling), rt.log
     finally:
         rc = rt.stop(signal.SIGTERM)
     rt.assert_clean_exit(rc)
     assert "SIGTERM received while the program is stuck: exiting with outputs safe" in rt.log
 
 
-def test_a_program_returning_after_the_watchdog_fired_stays_stopped(binary):
-    with h.Runtime(binary, "--no-rt", "--watchdog", "300") as rt, h.Client(rt.port) as c:
+def test_a_program_returning_after_the_watchdog_fired_stays_stopped(binary, scheduling):
+    with h.Runtime(binary, *scheduling, "--watchdog", "300") as rt, h.Client(rt.port) as c:
         c.write_register(1024 + 10, 14)                          # one run() call of 1.5 s
         rt.wait_for(r"watchdog: the program has been inside run\(\)")
         rt.wait_for(r"program returned from run\(\) after the watchdog fired at tick \d+; it stays stopped")
+        if not scheduling:                                       # lowered while stuck, SCHED_FIFO once back
+            rt.wait_for(r"run\(\) returned: the scan thread is SCHED_FIFO priority 50 again")
+            assert os.sched_getscheduler(rt.proc.pid) == os.SCHED_FIFO
         scans = h.read_diag(c)["scans"]
         h.wait_until(lambda: h.read_diag(c)["scans"] > scans + 5, 2, "the scan loop to go on")
         assert h.read_diag(c)["state"] == h.STATE_FAULTED and c.read_coils(0) == [False]

@@ -37,7 +37,7 @@ Configuration file (every key optional; paths relative to the file's directory):
 
     [scan]
     realtime = true                 # ask for SCHED_FIFO
-    rt_priority = 50
+    rt_priority = 50                # 1..98: the watchdog thread runs one level above
     # cpu = 1                       # pin the scan thread (only it) to this CPU (default: not pinned)
     # cpu_latency_us = 0            # no CPU idle state slower to wake than this while running (PM QoS)
     status_interval_s = 10          # status log line period when not on a terminal
@@ -318,7 +318,7 @@ RUN_CONFIG = {
         Field("registers", _ranges(HOLDING_REGISTERS), "holding registers saved with the RETAIN variables"))),
     "scan": Table((
         Field("realtime", Bool(), "ask for SCHED_FIFO"),
-        Field("rt_priority", Int(1, 99)),
+        Field("rt_priority", Int(1, 98), "1..98: the watchdog thread runs one level above"),
         # the machine that runs it may not be this one: the runtime checks the CPU is online
         Field("cpu", Int(0, MAX_CPU), "pin the scan thread to this CPU"),
         Field("cpu_latency_us", Int(0, 2000000000), "PM QoS: no CPU idle state slower to wake than this"),

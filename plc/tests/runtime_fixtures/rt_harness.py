@@ -106,6 +106,23 @@ def mbload_binary() -> Path:
     return tool_binary("mbload")
 
 
+_REALTIME_REFUSED: dict[Path, str | None] = {}
+
+
+def realtime_refused(binary: Path) -> str | None:
+    """None when the runtime `binary` gets SCHED_FIFO here (root, CAP_SYS_NICE, RLIMIT_RTPRIO), else the runtime's
+    own warning saying why not: the reason a real-time test prints when it skips."""
+    if binary not in _REALTIME_REFUSED:
+        result = subprocess.run([str(binary), "--port", "0", "--status", "off", "--watchdog", "0", "--duration",
+                                 "0.05"], capture_output=True, text=True, timeout=60 * SLOW, stdin=subprocess.DEVNULL,
+                                env={**os.environ, **SANITIZER_ENV})
+        granted = re.search(r"scan thread is SCHED_FIFO priority \d+", result.stderr)
+        refused = re.search(r"real-time scheduling not permitted \([^)]*\)", result.stderr)
+        _REALTIME_REFUSED[binary] = None if granted else (refused.group(0) if refused else
+                                                          "the runtime did not say:\n" + result.stderr)
+    return _REALTIME_REFUSED[binary]
+
+
 def wait_until(predicate: Callable[[], object], timeout: float, what: str, step: float = 0.01):
     """Poll predicate until it returns something true; fail after timeout seconds."""
     deadline = time.monotonic() + timeout * SLOW

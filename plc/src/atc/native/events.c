@@ -92,8 +92,8 @@ struct events {
     /* the retained data as restored, before the first scan fits them to the machine (RestartFit) */
     int64_t saved_tool, saved_count, saved_pocket[MAX_POCKETS + 1];
 
-    /* scan thread */
-    bool primed;
+    /* scan thread (primed: read by the log thread's status line too) */
+    atomic_bool primed;
     int64_t prev[R_COUNT];
     uint64_t prepare_at, change_at;
     int64_t change_from, change_to;
@@ -404,8 +404,8 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
     ev->sig[R_ESTOP_CLOSED].present = HAS(R_ESTOP_OK);
     cur[R_ESTOP_CLOSED] = (HAS(R_SIMULATED_PLANT) && cur[R_SIMULATED_PLANT]) ? !cur[R_SIM_ESTOP] : cur[R_ESTOP_OK];
 
-    if (!ev->primed) {
-        ev->primed = true;
+    if (!atomic_load(&ev->primed)) {
+        atomic_store(&ev->primed, true);
         memcpy(ev->prev, cur, sizeof cur);
         if (HAS(R_TOOL_IN_SPINDLE) || HAS(R_CHANGER_STATE))
             log_msg(log, LOG_INFO, "changer: tool %" PRId64 " in the spindle, state %s", cur[R_TOOL_IN_SPINDLE],
@@ -536,7 +536,7 @@ void events_status(events_t *ev, char *out, size_t n)
 
     if (n)
         out[0] = 0;
-    if (!ev || !ev->primed)
+    if (!ev || !atomic_load(&ev->primed))
         return;
     if (atomic_load(&ev->have_tool))
         k += snprintf(out + k, n - (size_t)k, " | tool %d", atomic_load(&ev->tool));

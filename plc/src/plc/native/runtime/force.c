@@ -13,7 +13,9 @@
  * The force table belongs to the scan thread.  The monitor thread hands it
  * one operation at a time in a mailbox guarded by a mutex that the scan
  * thread only ever trylocks: when the monitor holds it, the operation simply
- * waits for the next scan.  The monitor keeps a copy of the table, refreshed
+ * waits for the next scan.  The scan tells the monitor that an operation or
+ * a snapshot is done with rt_wake(), which never blocks (a condition
+ * variable's signal could wait for the SCHED_OTHER monitor thread).  The monitor keeps a copy of the table, refreshed
  * whenever an operation completes, to list the forces without touching the
  * scan thread's.  Snapshots take the same road the other way: the monitor
  * names the items, the scan thread copies them at the end of one scan.
@@ -34,7 +36,7 @@ struct force_state {
     unsigned n;
 
     pthread_mutex_t mu;            /* the mailbox and the snapshot request; trylocked by the scan thread */
-    pthread_cond_t cv;
+    rt_wake_t done;                /* the scan thread: an operation or a snapshot is done */
     atomic_bool op_pending;        /* an operation waits in the mailbox */
     atomic_bool snap_pending;      /* a snapshot waits to be taken */
 
@@ -59,15 +61,11 @@ struct force_state {
 force_state_t *force_create(void)
 {
     force_state_t *fs = calloc(1, sizeof *fs);
-    pthread_condattr_t ca;
 
     if (!fs)
         return NULL;
-    pthread_mutex_init(&fs->mu, NULL);
-    pthread_condattr_init(&ca);
-    pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
-    pthread_cond_init(&fs->cv, &ca);
-    pthread_condattr_destroy(&ca);
+    rt_mutex_init(&fs->mu);
+    rt_wake_init(&fs->done);
     return fs;
 }
 
@@ -76,21 +74,18 @@ void force_destroy(force_state_t *fs)
     if (!fs)
         return;
     pthread_mutex_destroy(&fs->mu);
-    pthread_cond_destroy(&fs->cv);
+    rt_wake_destroy(&fs->done);
     free(fs);
 }
 
-static struct timespec deadline_in(int ms)
+/* Called with fs->mu held; returns with it held, once *done is true or the monotonic time `until` has passed. */
+static void wait_done(force_state_t *fs, const bool *done, uint64_t until)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    ts.tv_sec += ms / 1000;
-    ts.tv_nsec += (long)(ms % 1000) * 1000000L;
-    if (ts.tv_nsec >= 1000000000L) {
-        ts.tv_sec++;
-        ts.tv_nsec -= 1000000000L;
+    while (!*done && now_ns() < until) {
+        pthread_mutex_unlock(&fs->mu);
+        rt_wake_wait(&fs->done, until);
+        pthread_mutex_lock(&fs->mu);
     }
-    return ts;
 }
 
 /* ------------------------------------------------------- monitor side */
@@ -98,8 +93,7 @@ static struct timespec deadline_in(int ms)
 int force_request(force_state_t *fs, force_op_t op, const var_ref_t *ref, const uint8_t *value, const char *text,
                   int timeout_ms, uint64_t *scan, char *err, size_t errlen)
 {
-    struct timespec until = deadline_in(timeout_ms);
-    int rc = 0;
+    const uint64_t until = now_ns() + (uint64_t)timeout_ms * 1000000u;
 
     pthread_mutex_lock(&fs->mu);
     memset(&fs->arg, 0, sizeof fs->arg);
@@ -114,8 +108,7 @@ int force_request(force_state_t *fs, force_op_t op, const var_ref_t *ref, const 
     snprintf(fs->arg.text, sizeof fs->arg.text, "%s", text ? text : "");
     fs->op_done = false;
     atomic_store(&fs->op_pending, true);
-    while (!fs->op_done && rc == 0)
-        rc = pthread_cond_timedwait(&fs->cv, &fs->mu, &until);
+    wait_done(fs, &fs->op_done, until);
     if (!fs->op_done) {
         /* Withdrawn under the lock: the scan thread can no longer take it. */
         atomic_store(&fs->op_pending, false);
@@ -144,8 +137,7 @@ unsigned force_list(force_state_t *fs, force_entry_t *out, unsigned max)
 int force_snapshot(force_state_t *fs, const snap_item_t *items, unsigned n, uint8_t *data, int timeout_ms,
                    uint64_t *scan)
 {
-    struct timespec until = deadline_in(timeout_ms);
-    int rc = 0;
+    const uint64_t until = now_ns() + (uint64_t)timeout_ms * 1000000u;
 
     pthread_mutex_lock(&fs->mu);
     fs->items = items;
@@ -153,8 +145,7 @@ int force_snapshot(force_state_t *fs, const snap_item_t *items, unsigned n, uint
     fs->data = data;
     fs->snap_done = false;
     atomic_store(&fs->snap_pending, true);
-    while (!fs->snap_done && rc == 0)
-        rc = pthread_cond_timedwait(&fs->cv, &fs->mu, &until);
+    wait_done(fs, &fs->snap_done, until);
     bool done = fs->snap_done;
     atomic_store(&fs->snap_pending, false);
     fs->items = NULL;
@@ -243,9 +234,9 @@ void force_after_inputs(force_state_t *fs, uint64_t scan)
             fs->n_copy = fs->n;
             fs->op_done = true;
             atomic_store(&fs->op_pending, false);
-            pthread_cond_broadcast(&fs->cv);
         }
         pthread_mutex_unlock(&fs->mu);
+        rt_wake(&fs->done);
     }
     for (unsigned i = 0; i < fs->n; i++)
         memcpy(fs->table[i].addr, fs->table[i].value, fs->table[i].size);
@@ -275,7 +266,7 @@ void force_scan_done(force_state_t *fs, uint64_t scan)
         fs->snap_scan = scan;
         fs->snap_done = true;
         atomic_store(&fs->snap_pending, false);
-        pthread_cond_broadcast(&fs->cv);
     }
     pthread_mutex_unlock(&fs->mu);
+    rt_wake(&fs->done);
 }

@@ -41,7 +41,10 @@
  *     outputs at every answering unit of the line <= max age.
  *     `plc run` refuses a max age below the line's worst case (io_config.py).
  *
- * Both sides hold the device mutex only to copy a few words.  A connection
+ * Both sides hold the device mutex (priority-inheriting) only to copy a few
+ * words; the scan wakes a poll thread with rt_wake(), never a condition
+ * variable (realtime.c).  The poll threads and the loss watch run SCHED_FIFO 5
+ * levels below the scan when real-time scheduling is on.  A connection
  * that fails is reopened with a back-off (first period doubling up to the
  * maximum); a log line is written per state change, never per retry.
  *
@@ -64,7 +67,6 @@
 #include <inttypes.h>
 #include <modbus.h>
 #include <pthread.h>
-#include <sched.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -73,6 +75,7 @@
 #include "runtime.h"
 
 #define MAX_RANGES 32
+#define IO_BELOW_SCAN (-5)   /* the poll threads' and the loss watch's SCHED_FIFO priority: the scan's - 5 */
 #define STARTUP_WAIT_MAX_MS 3000u
 
 typedef enum range_kind { RANGE_DI, RANGE_CO, RANGE_IR, RANGE_HR, RANGE_HW } range_kind_t;
@@ -128,7 +131,7 @@ typedef struct io_device {
     bool thread_started;
 
     pthread_mutex_t m;       /* guards the fields up to `stop` */
-    pthread_cond_t cv;
+    rt_wake_t wake;          /* leader: new outputs handed over, or stop (the scan gives it without a lock) */
     uint16_t *in_snap;       /* last complete input cycle */
     uint64_t snap_ns;        /* when it began; 0: none yet */
     uint16_t *out_next;      /* outputs handed over by the scan */
@@ -444,26 +447,17 @@ static int read_inputs_now(io_device_t *d, uint16_t *in)
     return 0;
 }
 
-static void add_ms(struct timespec *ts, uint64_t t_ns)
-{
-    ts->tv_sec = (time_t)(t_ns / 1000000000u);
-    ts->tv_nsec = (long)(t_ns % 1000000000u);
-}
-
 /* Wait until `until` (monotonic ns) or a stop; TRUE when stopping. */
 static bool wait_or_stop(io_device_t *d, uint64_t until)
 {
-    struct timespec ts;
-    bool stop;
-
-    add_ms(&ts, until);
-    pthread_mutex_lock(&d->m);
-    while (!d->stop && now_ns() < until)
-        if (pthread_cond_timedwait(&d->cv, &d->m, &ts) == ETIMEDOUT)
-            break;
-    stop = d->stop;
-    pthread_mutex_unlock(&d->m);
-    return stop;
+    for (;;) {
+        pthread_mutex_lock(&d->m);
+        bool stop = d->stop;
+        pthread_mutex_unlock(&d->m);
+        if (stop || now_ns() >= until)
+            return stop;
+        rt_wake_wait(&d->wake, until);
+    }
 }
 
 /* The link goes down: logged once, when it was up (or never announced). */
@@ -634,11 +628,9 @@ static void *poll_thread(void *arg)
     uint64_t next = now_ns();
     uint32_t seen = 0;
 
-    if (rt->opt.realtime) {
-        /* Below the scan, above the Modbus server: inputs are what the scan waits for. */
-        struct sched_param sp = { .sched_priority = rt->opt.rt_priority > 5 ? rt->opt.rt_priority - 5 : 1 };
-        (void)pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
-    }
+    rt_thread_name("io-poll");
+    /* Below the scan, above the Modbus server: inputs are what the scan waits for. */
+    (void)rt_thread_fifo(rt, IO_BELOW_SCAN);
     for (;;) {
         if (!L->connected) {
             /* After a failure, wait the back-off first (doubling until a good cycle). */
@@ -688,21 +680,19 @@ static void *poll_thread(void *arg)
         /* Until the next cycle: outputs handed over meanwhile go out at once. */
         bool stop = false;
         for (;;) {
-            struct timespec ts;
-            bool changed;
-
-            add_ms(&ts, next);
             pthread_mutex_lock(&L->m);
-            while (!L->stop && atomic_load(&L->line_seq) == seen && now_ns() < next)
-                if (pthread_cond_timedwait(&L->cv, &L->m, &ts) == ETIMEDOUT)
-                    break;
             stop = L->stop;
-            changed = atomic_load(&L->line_seq) != seen;
             pthread_mutex_unlock(&L->m);
-            if (stop || !changed || !L->connected)
+            if (stop || !L->connected)
                 break;
-            seen = atomic_load(&L->line_seq);
-            write_changed(L);
+            if (atomic_load(&L->line_seq) != seen) {
+                seen = atomic_load(&L->line_seq);
+                write_changed(L);
+                continue;
+            }
+            if (now_ns() >= next)
+                break;
+            rt_wake_wait(&L->wake, next);
         }
         if (stop)
             break;
@@ -746,9 +736,7 @@ static void hand_over(io_device_t *d, const uint16_t *out)
     if (changed) {
         io_device_t *L = d->leader;
         atomic_fetch_add(&L->line_seq, 1);
-        pthread_mutex_lock(&L->m);
-        pthread_cond_signal(&L->cv);
-        pthread_mutex_unlock(&L->m);
+        rt_wake(&L->wake);
     }
 }
 
@@ -774,6 +762,9 @@ static void declare_lost_if_stale(io_device_t *d, uint64_t now, uint64_t snap)
 static void *loss_watch(void *arg)
 {
     io_modbus_t *io = arg;
+
+    rt_thread_name("io-loss-watch");
+    (void)rt_thread_fifo(io->rt, IO_BELOW_SCAN);    /* it declares losses: outputs safe, as the poll threads */
 
     for (;;) {
         const uint64_t now = now_ns();
@@ -844,7 +835,7 @@ static void modbus_write_outputs(void *state, const plc_bool_t qx[MAP_BITS], con
     io_modbus_t *io = state;
     runtime_t *rt = io->rt;
     const bool on_scan = pthread_equal(pthread_self(), rt->scan_thread);
-    const bool stopped = atomic_load(&rt->watchdog_tripped) || !on_scan || rt->state != PLC_STATE_RUNNING;
+    const bool stopped = atomic_load(&rt->watchdog_tripped) || !on_scan || atomic_load(&rt->state) != PLC_STATE_RUNNING;
 
     for (unsigned i = 0; i < io->n; i++) {
         io_device_t *d = &io->dev[i];
@@ -895,8 +886,8 @@ static void modbus_close_layer(void *state)
         io_device_t *d = &io->dev[i];
         pthread_mutex_lock(&d->m);
         d->stop = true;
-        pthread_cond_broadcast(&d->cv);
         pthread_mutex_unlock(&d->m);
+        rt_wake(&d->wake);
     }
     for (unsigned i = 0; i < io->n; i++)
         if (io->dev[i].thread_started)
@@ -917,7 +908,7 @@ static void modbus_close_layer(void *state)
             modbus_close(d->ctx);
             modbus_free(d->ctx);
         }
-        pthread_cond_destroy(&d->cv);
+        rt_wake_destroy(&d->wake);
         pthread_mutex_destroy(&d->m);
         free_device(d);
     }
@@ -997,13 +988,8 @@ static int group_lines(io_modbus_t *io, char *err, size_t errlen)
 
 static int open_device(io_device_t *d, char *err, size_t errlen)
 {
-    pthread_condattr_t ca;
-
-    pthread_condattr_init(&ca);
-    pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
-    pthread_cond_init(&d->cv, &ca);
-    pthread_condattr_destroy(&ca);
-    pthread_mutex_init(&d->m, NULL);
+    rt_wake_init(&d->wake);
+    rt_mutex_init(&d->m);
     atomic_store(&d->state, IO_DEVICE_WAITING);
 
     if (d->leader != d) {           /* a further device on a serial line: its leader's context */
@@ -1045,7 +1031,7 @@ static int modbus_open_layer(runtime_t *rt, void **state, char *err, size_t errl
     pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
     pthread_cond_init(&io->wcv, &ca);
     pthread_condattr_destroy(&ca);
-    pthread_mutex_init(&io->wm, NULL);
+    rt_mutex_init(&io->wm);
     for (int i = 0; i < rt->opt.n_io_devices; i++) {
         io_device_t *d = &io->dev[io->n];
         d->rt = rt;

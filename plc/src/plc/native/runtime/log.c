@@ -1,9 +1,14 @@
 /*
  * log.c - log lines and the live status line, on stderr.
  *
- * Any thread may log; a line is formatted into a fixed ring under a short
- * lock and written by the log thread, so the scan thread never waits for a
- * terminal or a pipe (when the ring is full, lines are dropped and counted).
+ * Any thread may log, the scan thread included, without ever waiting: a line
+ * is formatted (vsnprintf, no lock) into a lock-free ring with its
+ * CLOCK_REALTIME time, and the log thread formats the time (localtime_r, which
+ * takes glibc's time-zone lock) and writes it, so no logging thread waits for
+ * a lock, a terminal or a pipe.  When the ring is full, lines are dropped and
+ * counted, and the count is logged.  The log thread stays SCHED_OTHER and
+ * takes none of the scan's locks: the status line's figures are atomics
+ * (runtime.h, live_status_t).
  *
  * On a terminal the log thread keeps a one-line live status (scan statistics,
  * clients, PLC state) redrawn four times a second below the log lines.
@@ -29,17 +34,32 @@
 #include "runtime.h"
 #include "monitor.h"
 
-#define LOG_SLOTS 256
+#define LOG_SLOTS 256       /* a power of two: position % LOG_SLOTS stays continuous across the 32-bit wrap */
 #define LOG_LINE 512
+#define LOG_OUT (LOG_LINE + 64)   /* a line with its time stamp or priority, level tag and newline */
+
+/*
+ * The ring: a bounded queue of LOG_SLOTS slots, many producers, one consumer (the log thread), without a
+ * lock.  Each slot's `seq` says whose turn it is: equal to the position p that maps to it, it is free for
+ * the producer that claims p (a compare-and-swap on `head`); p + 1, it holds p's line for the log thread,
+ * which gives it back as p + LOG_SLOTS.  A producer never waits: with the ring full the line is dropped and
+ * counted.  A producer preempted between its claim and its store only delays the lines after it.
+ */
+typedef struct log_slot {
+    atomic_uint seq;
+    log_level_t level;
+    uint64_t realtime_ns;         /* CLOCK_REALTIME when logged (a vDSO read): the log thread formats it */
+    char text[LOG_LINE];          /* the message, without time stamp or level */
+} log_slot_t;
 
 struct log_sink {
     runtime_t *rt;
-    pthread_mutex_t mu;
-    pthread_cond_t cv;
-    char ring[LOG_SLOTS][LOG_LINE];
-    unsigned head, tail;          /* head: next free slot; tail: next to write */
-    unsigned dropped;
-    bool stopping;
+    log_slot_t ring[LOG_SLOTS];
+    atomic_uint head;             /* next position to claim (producers) */
+    unsigned tail;                /* next position to write (log thread) */
+    atomic_uint dropped;          /* lines lost to a full ring since the last report */
+    atomic_bool stopping;
+    rt_wake_t wake;               /* a line was stored, or log_close() */
     bool tty;                     /* live status line on a terminal */
     bool journal;                 /* stderr is the systemd journal: priority prefixes */
     double status_period_s;       /* 0: no status */
@@ -61,6 +81,14 @@ static void write_fd(const char *s, size_t n)
     }
 }
 
+static uint64_t realtime_ns(void)
+{
+    struct timespec ts;
+
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
 static const char *state_name(unsigned s)
 {
     switch (s) {
@@ -75,18 +103,14 @@ static const char *state_name(unsigned s)
 static void compose_status(log_sink_t *ls, char *out, size_t n)
 {
     runtime_t *rt = ls->rt;
-    const bus_image_t *b = &rt->bimg;
-
-    pthread_mutex_lock(&rt->lock);
-    unsigned state = b->input_regs[DIAG_BASE + DIAG_STATE];
-    unsigned long long scans = (unsigned long long)diag_get64(b, DIAG_SCAN_COUNT);
-    unsigned scan_last = diag_get32(b, DIAG_SCAN_LAST_US), scan_p99 = diag_get32(b, DIAG_SCAN_P99_US);
-    unsigned scan_max = diag_get32(b, DIAG_SCAN_MAX_US);
-    unsigned wake_p99 = diag_get32(b, DIAG_WAKE_P99_US), wake_max = diag_get32(b, DIAG_WAKE_MAX_US);
-    unsigned overruns = diag_get32(b, DIAG_OVERRUNS), clients = b->input_regs[DIAG_BASE + DIAG_CLIENTS];
-    unsigned requests = diag_get32(b, DIAG_REQUESTS);
-    unsigned fault = b->input_regs[DIAG_BASE + DIAG_FAULT_KIND], line = b->input_regs[DIAG_BASE + DIAG_FAULT_LINE];
-    pthread_mutex_unlock(&rt->lock);
+    live_status_t *l = &rt->live;
+#define LIVE(field) atomic_load_explicit(&l->field, memory_order_relaxed)
+    unsigned state = LIVE(state), fault = LIVE(fault_kind), line = LIVE(fault_line);
+    unsigned long long scans = LIVE(scans);
+    unsigned scan_last = LIVE(scan_last_us), scan_p99 = LIVE(scan_p99_us), scan_max = LIVE(scan_max_us);
+    unsigned wake_p99 = LIVE(wake_p99_us), wake_max = LIVE(wake_max_us), overruns = LIVE(overruns);
+    unsigned clients = LIVE(clients), requests = LIVE(requests);
+#undef LIVE
 
     char app[160];
     events_status(rt->events, app, sizeof app);
@@ -120,113 +144,117 @@ static int journal_priority(log_level_t level)
     return level == LOG_ERROR ? 3 : level == LOG_WARN ? 4 : 6;
 }
 
-static void format_line(char *out, size_t n, bool journal, log_level_t level, const char *fmt, va_list ap)
+static const char *level_tag(log_level_t level)
 {
-    struct timespec ts;
-    struct tm tm;
-    const char *tag = level == LOG_ERROR ? "error: " : level == LOG_WARN ? "warning: " : "";
+    return level == LOG_ERROR ? "error: " : level == LOG_WARN ? "warning: " : "";
+}
+
+/* One output line: time stamp (or journald priority), level tag, text, newline.  Local time is formatted
+ * here, on the thread that writes, never on the one that logged (localtime_r takes glibc's time-zone lock). */
+static size_t format_out(char *out, size_t n, bool journal, log_level_t level, uint64_t when_ns, const char *text)
+{
+    int k;
 
     if (journal) {
-        int k = snprintf(out, n, "<%d>%s", journal_priority(level), tag);
-        vsnprintf(out + k, n - (size_t)k, fmt, ap);
-        return;
+        k = snprintf(out, n, "<%d>%s%s\n", journal_priority(level), level_tag(level), text);
+    } else {
+        time_t sec = (time_t)(when_ns / 1000000000u);
+        struct tm tm;
+        localtime_r(&sec, &tm);
+        k = snprintf(out, n, "%02d:%02d:%02d.%03u " RT_NAME ": %s%s\n", tm.tm_hour, tm.tm_min, tm.tm_sec,
+                     (unsigned)(when_ns % 1000000000u / 1000000u), level_tag(level), text);
     }
-    clock_gettime(CLOCK_REALTIME, &ts);
-    localtime_r(&ts.tv_sec, &tm);
-    int k = snprintf(out, n, "%02d:%02d:%02d.%03ld " RT_NAME ": %s", tm.tm_hour, tm.tm_min, tm.tm_sec,
-                     ts.tv_nsec / 1000000, tag);
-    if (k < 0 || (size_t)k >= n)
-        k = 0;
-    vsnprintf(out + k, n - (size_t)k, fmt, ap);
+    if (k < 0)
+        return 0;
+    if ((size_t)k >= n) {             /* cut: still one line */
+        out[n - 2] = '\n';
+        return n - 1;
+    }
+    return (size_t)k;
+}
+
+/* The log thread's: the next stored line, or false.  The slot is free again on return. */
+static bool take_line(log_sink_t *ls, log_level_t *level, uint64_t *when_ns, char text[LOG_LINE])
+{
+    log_slot_t *s = &ls->ring[ls->tail % LOG_SLOTS];
+
+    if (atomic_load_explicit(&s->seq, memory_order_acquire) != ls->tail + 1)
+        return false;
+    *level = s->level;
+    *when_ns = s->realtime_ns;
+    memcpy(text, s->text, LOG_LINE);
+    atomic_store_explicit(&s->seq, ls->tail + LOG_SLOTS, memory_order_release);
+    ls->tail++;
+    return true;
+}
+
+/* Writes every line stored so far; returns how many. */
+static unsigned write_lines(log_sink_t *ls)
+{
+    char text[LOG_LINE], out[LOG_OUT];
+    log_level_t level;
+    uint64_t when;
+    unsigned n = 0;
+
+    while (take_line(ls, &level, &when, text)) {
+        if (n++ == 0 && ls->tty && ls->status_shown)
+            write_fd("\r\033[K", 4);
+        write_fd(out, format_out(out, sizeof out, ls->journal, level, when, text));
+    }
+    unsigned dropped = atomic_exchange(&ls->dropped, 0);
+    if (dropped) {
+        char msg[96];
+        snprintf(msg, sizeof msg, "%u log lines dropped (log output too slow)", dropped);
+        write_fd(out, format_out(out, sizeof out, ls->journal, LOG_WARN, realtime_ns(), msg));
+    }
+    return n;
+}
+
+static void write_status(log_sink_t *ls, bool due)
+{
+    char status[LOG_LINE], out[LOG_OUT + 16];
+
+    compose_status(ls, status, sizeof status);
+    if (ls->tty) {
+        write_fd("\r\033[K", 4);
+        write_fd(status, strlen(status));
+        ls->status_shown = true;
+    } else if (due) {
+        char text[LOG_LINE + 8];
+        snprintf(text, sizeof text, "status %s", status);
+        write_fd(out, format_out(out, sizeof out, ls->journal, LOG_INFO, realtime_ns(), text));
+    }
 }
 
 static void *log_thread(void *arg)
 {
     log_sink_t *ls = arg;
-    char batch[16][LOG_LINE];
-    char status[LOG_LINE];
-    struct timespec next;
+    const uint64_t step = (uint64_t)(ls->status_period_s * 1e9);
+    /* log lines: the first status after a period; a terminal's line at once */
+    uint64_t next = now_ns() + (ls->tty ? 0 : step);
 
-    clock_gettime(CLOCK_MONOTONIC, &next);
-    if (!ls->tty && ls->status_period_s > 0) {     /* log lines: the first one after a period */
-        uint64_t t = (uint64_t)next.tv_sec * 1000000000u + (uint64_t)next.tv_nsec
-                     + (uint64_t)(ls->status_period_s * 1e9);
-        next.tv_sec = (time_t)(t / 1000000000u);
-        next.tv_nsec = (long)(t % 1000000000u);
-    }
-    pthread_mutex_lock(&ls->mu);
+    rt_thread_name("log");
     for (;;) {
-        bool status_due = false;
+        const bool stopping = atomic_load(&ls->stopping);   /* before the last lines: none is left behind */
+        const unsigned n = write_lines(ls);
 
-        while (ls->head == ls->tail && !ls->stopping) {
-            if (ls->status_period_s <= 0) {
-                pthread_cond_wait(&ls->cv, &ls->mu);
-                continue;
-            }
-            if (pthread_cond_timedwait(&ls->cv, &ls->mu, &next) == ETIMEDOUT) {
-                status_due = true;
-                break;
-            }
-        }
-        unsigned n = 0, dropped = ls->dropped;
-        while (ls->tail != ls->head && n < 16) {
-            memcpy(batch[n++], ls->ring[ls->tail % LOG_SLOTS], LOG_LINE);
-            ls->tail++;
-        }
-        ls->dropped = 0;
-        bool stopping = ls->stopping && ls->head == ls->tail;
-        pthread_mutex_unlock(&ls->mu);
-
-        if (ls->tty && ls->status_shown && (n > 0 || stopping))
-            write_fd("\r\033[K", 4);
-        for (unsigned i = 0; i < n; i++) {
-            write_fd(batch[i], strlen(batch[i]));
-            write_fd("\n", 1);
-        }
-        if (dropped) {
-            char msg[96];
-            int k = snprintf(msg, sizeof msg, "%s" RT_NAME ": warning: %u log lines dropped (log output too "
-                             "slow)\n", ls->journal ? "<4>" : "", dropped);
-            write_fd(msg, (size_t)k);
-        }
         if (stopping)
             break;
-        if (ls->status_period_s > 0 && !status_due) {
-            struct timespec now;
-            clock_gettime(CLOCK_MONOTONIC, &now);
-            status_due = now.tv_sec > next.tv_sec || (now.tv_sec == next.tv_sec && now.tv_nsec >= next.tv_nsec);
+        bool due = false;
+        if (step > 0 && now_ns() >= next) {
+            due = true;
+            next += step;
+            if (next < now_ns())          /* the machine held this thread back: no burst of status lines */
+                next = now_ns() + step;
         }
-        if (status_due) {
-            uint64_t step = (uint64_t)(ls->status_period_s * 1e9);
-            uint64_t t = (uint64_t)next.tv_sec * 1000000000u + (uint64_t)next.tv_nsec + step;
-            next.tv_sec = (time_t)(t / 1000000000u);
-            next.tv_nsec = (long)(t % 1000000000u);
-        }
-        if (ls->status_period_s > 0 && (status_due || (ls->tty && n > 0))) {
-            compose_status(ls, status, sizeof status);
-            if (ls->tty) {
-                write_fd("\r\033[K", 4);
-                write_fd(status, strlen(status));
-                ls->status_shown = true;
-            } else if (status_due) {
-                char line[LOG_LINE + 64];
-                struct timespec ts;
-                struct tm tm;
-                int k;
-                clock_gettime(CLOCK_REALTIME, &ts);
-                localtime_r(&ts.tv_sec, &tm);
-                if (ls->journal)
-                    k = snprintf(line, sizeof line, "<6>status %s\n", status);
-                else
-                    k = snprintf(line, sizeof line, "%02d:%02d:%02d.%03ld " RT_NAME ": status %s\n", tm.tm_hour,
-                                 tm.tm_min, tm.tm_sec, ts.tv_nsec / 1000000, status);
-                write_fd(line, k > 0 && (size_t)k < sizeof line ? (size_t)k : strlen(line));
-            }
-        }
-        pthread_mutex_lock(&ls->mu);
+        if (step > 0 && (due || (ls->tty && n > 0)))
+            write_status(ls, due);
+        rt_wake_wait(&ls->wake, step > 0 ? next : RT_WAKE_NEVER);
     }
     if (ls->tty && ls->status_shown) {
+        char status[LOG_LINE];
         compose_status(ls, status, sizeof status);
+        write_fd("\r\033[K", 4);
         write_fd(status, strlen(status));
         write_fd("\n", 1);
     }
@@ -240,12 +268,9 @@ int log_open(runtime_t *rt, log_sink_t **out)
     if (!ls)
         return -1;
     ls->rt = rt;
-    pthread_mutex_init(&ls->mu, NULL);
-    pthread_condattr_t ca;
-    pthread_condattr_init(&ca);
-    pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
-    pthread_cond_init(&ls->cv, &ca);
-    pthread_condattr_destroy(&ca);
+    for (unsigned i = 0; i < LOG_SLOTS; i++)
+        atomic_init(&ls->ring[i].seq, i);
+    rt_wake_init(&ls->wake);
 
     bool on_tty = isatty(STDERR_FILENO);
     ls->journal = stderr_is_journal();
@@ -260,6 +285,7 @@ int log_open(runtime_t *rt, log_sink_t **out)
         ls->status_period_s = ls->tty ? 0.25 : rt->opt.status_interval_s;
 
     if (pthread_create(&ls->thread, NULL, log_thread, ls) != 0) {
+        rt_wake_destroy(&ls->wake);
         free(ls);
         return -1;
     }
@@ -271,37 +297,58 @@ void log_close(log_sink_t *ls)
 {
     if (!ls)
         return;
-    pthread_mutex_lock(&ls->mu);
-    ls->stopping = true;
-    pthread_cond_signal(&ls->cv);
-    pthread_mutex_unlock(&ls->mu);
+    atomic_store(&ls->stopping, true);
+    rt_wake(&ls->wake);
     pthread_join(ls->thread, NULL);
-    pthread_mutex_destroy(&ls->mu);
-    pthread_cond_destroy(&ls->cv);
+    rt_wake_destroy(&ls->wake);
     free(ls);
+}
+
+/* A free slot of the ring, claimed at *pos; NULL when the ring is full. */
+static log_slot_t *claim_slot(log_sink_t *ls, unsigned *pos)
+{
+    unsigned p = atomic_load_explicit(&ls->head, memory_order_relaxed);
+
+    for (;;) {
+        log_slot_t *s = &ls->ring[p % LOG_SLOTS];
+        const int turn = (int)(atomic_load_explicit(&s->seq, memory_order_acquire) - p);
+        if (turn == 0) {
+            if (atomic_compare_exchange_weak_explicit(&ls->head, &p, p + 1, memory_order_relaxed,
+                                                      memory_order_relaxed)) {
+                *pos = p;
+                return s;
+            }
+        } else if (turn < 0) {
+            return NULL;              /* the slot still holds the line LOG_SLOTS positions back */
+        } else {
+            p = atomic_load_explicit(&ls->head, memory_order_relaxed);   /* another producer took p */
+        }
+    }
 }
 
 void log_msg(log_sink_t *ls, log_level_t level, const char *fmt, ...)
 {
     va_list ap;
+    unsigned pos;
 
     va_start(ap, fmt);
-    if (!ls) {           /* before the log thread exists */
-        char line[LOG_LINE];
-        format_line(line, sizeof line, stderr_is_journal(), level, fmt, ap);
+    if (!ls) {           /* before the log thread exists (start-up, one thread) */
+        char text[LOG_LINE], out[LOG_OUT];
+        vsnprintf(text, sizeof text, fmt, ap);
         va_end(ap);
-        write_fd(line, strlen(line));
-        write_fd("\n", 1);
+        write_fd(out, format_out(out, sizeof out, stderr_is_journal(), level, realtime_ns(), text));
         return;
     }
-    pthread_mutex_lock(&ls->mu);
-    if (ls->head - ls->tail >= LOG_SLOTS) {
-        ls->dropped++;
-    } else {
-        format_line(ls->ring[ls->head % LOG_SLOTS], LOG_LINE, ls->journal, level, fmt, ap);
-        ls->head++;
-        pthread_cond_signal(&ls->cv);
+    log_slot_t *s = claim_slot(ls, &pos);
+    if (!s) {
+        va_end(ap);
+        atomic_fetch_add(&ls->dropped, 1);
+        return;
     }
-    pthread_mutex_unlock(&ls->mu);
+    s->level = level;
+    s->realtime_ns = realtime_ns();
+    vsnprintf(s->text, sizeof s->text, fmt, ap);
     va_end(ap);
+    atomic_store_explicit(&s->seq, pos + 1, memory_order_release);
+    rt_wake(&ls->wake);
 }

@@ -62,8 +62,9 @@ static void usage(FILE *f)
 "  --writable-registers LIST  holding registers the host may write\n"
 "                           (default " DEFAULT_WRITABLE_REGISTERS ", 'none')\n"
 "  --no-rt                  do not ask for SCHED_FIFO\n"
-"  --rt-priority N          SCHED_FIFO priority of the scan thread (default %d;\n"
-"                           the Modbus server thread runs 10 levels below it)\n"
+"  --rt-priority N          SCHED_FIFO priority of the scan thread, 1..98 (default %d;\n"
+"                           the watchdog runs 1 level above it, the remote I/O threads\n"
+"                           5 and the Modbus server thread 10 levels below)\n"
 "  --cpu N                  pin the scan thread (only it) to CPU N, an online CPU\n"
 "                           (default: not pinned; keep other work off N, e.g. isolcpus=)\n"
 "  --cpu-latency US         while running, keep every CPU out of idle states that take\n"
@@ -345,8 +346,8 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             o->realtime = false;
             break;
         case OPT_RT_PRIORITY:
-            if (!parse_long(optarg, 1, 99, &v))
-                return usage_error("--rt-priority: '%s' is not a number 1..99", optarg);
+            if (!parse_long(optarg, 1, 98, &v))   /* 99 is the watchdog's, above a scan at 98 */
+                return usage_error("--rt-priority: '%s' is not a number 1..98", optarg);
             o->rt_priority = (int)v;
             break;
         case OPT_CPU:
@@ -465,8 +466,8 @@ int main(int argc, char **argv)
         }
         return retain_describe(&rt, stdout) == 0 && fflush(stdout) == 0 ? 0 : 1;
     }
-    pthread_mutex_init(&rt.lock, NULL);
-    pthread_mutex_init(&rt.io_lock, NULL);
+    rt_mutex_init(&rt.lock);
+    rt_mutex_init(&rt.io_lock);
     rt.scan_thread = pthread_self();
 
     /* Every thread created from here on inherits the blocked signals. */

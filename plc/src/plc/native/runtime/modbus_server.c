@@ -49,7 +49,6 @@
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <pthread.h>
-#include <sched.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -155,6 +154,8 @@ static void publish_counters(modbus_server_t *srv)   /* caller holds the lock */
     diag_put32(b, DIAG_EXCEPTIONS, srv->exceptions);
     diag_put32(b, DIAG_REFUSED, srv->refused);
     diag_put32(b, DIAG_DROPPED, srv->dropped);
+    atomic_store_explicit(&srv->rt->live.clients, (unsigned)srv->n_clients, memory_order_relaxed);
+    atomic_store_explicit(&srv->rt->live.requests, srv->requests, memory_order_relaxed);
 }
 
 static void update_counters(modbus_server_t *srv)
@@ -639,18 +640,12 @@ static uint64_t enforce_timeouts(modbus_server_t *srv, uint64_t t)
  * and the scan still preempts the network. */
 static void setup_priority(modbus_server_t *srv)
 {
-    const rt_options_t *opt = &srv->rt->opt;
-    struct sched_param sp = { .sched_priority = opt->rt_priority - PRIORITY_BELOW_SCAN };
-
-    if (!opt->realtime)
-        return;
-    if (sp.sched_priority < 1)
-        sp.sched_priority = 1;
-    int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
-    if (rc != 0)
-        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread at normal priority (SCHED_FIFO: %s)", strerror(rc));
-    else
-        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread is SCHED_FIFO priority %d", sp.sched_priority);
+    rt_thread_name("modbus-server");
+    int prio = rt_thread_fifo(srv->rt, -PRIORITY_BELOW_SCAN);
+    if (prio < 0)
+        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread at normal priority (SCHED_FIFO: %s)", strerror(-prio));
+    else if (prio > 0)
+        log_msg(srv->rt->log, LOG_INFO, "modbus: server thread is SCHED_FIFO priority %d", prio);
 }
 
 static void *server_thread(void *arg)

@@ -723,6 +723,7 @@ static void *monitor_thread(void *arg)
     struct pollfd pfd[2 + MON_MAX_CLIENTS];
     int slot[2 + MON_MAX_CLIENTS];
 
+    rt_thread_name("monitor");         /* SCHED_OTHER: the scan only trylocks what it shares (force.c) */
     for (;;) {
         int n = 0;
         pfd[n].fd = m->wake[0];

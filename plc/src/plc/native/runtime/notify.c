@@ -115,12 +115,14 @@ static void say_running(notifier_t *n, const runtime_t *rt, const char *prefix)
 
 static void say_state(notifier_t *n, const runtime_t *rt)
 {
-    if (rt->state == n->last_state)
+    const plc_state_t state = (plc_state_t)atomic_load(&rt->state);
+
+    if (state == n->last_state)
         return;
-    n->last_state = rt->state;
-    if (rt->state == PLC_STATE_RUNNING)
+    n->last_state = state;
+    if (state == PLC_STATE_RUNNING)
         say_running(n, rt, "");
-    else if (rt->state == PLC_STATE_FAULTED)
+    else if (state == PLC_STATE_FAULTED)
         notify_send(n, "STATUS=FAULTED: program stopped (fault kind %d at line %d), outputs safe, Modbus serving",
                     rt->fault_kind, rt->fault_line);
 }
@@ -132,7 +134,7 @@ void notify_after_scan(notifier_t *n, const runtime_t *rt, uint64_t now)
     if (!n->ready_sent) {
         say_running(n, rt, "READY=1\n");
         n->ready_sent = true;
-        n->last_state = rt->state;
+        n->last_state = (plc_state_t)atomic_load(&rt->state);
     }
     say_state(n, rt);
     if (n->ping_every_ns && now - n->last_ping_ns >= n->ping_every_ns) {

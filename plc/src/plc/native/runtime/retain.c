@@ -127,9 +127,9 @@ struct retain_store {
     uint64_t last_handoff_ns;
     bool handed_once;             /* the first save is not rate-limited */
 
-    /* shared with the writer, under mu */
+    /* shared with the writer, under mu (the scan thread only trylocks it) */
     pthread_mutex_t mu;
-    pthread_cond_t cv;
+    rt_wake_t wake;               /* the outbox was filled, or stopping (never blocks the scan) */
     uint8_t *outbox;
     bool outbox_full;
     bool stopping;
@@ -828,20 +828,23 @@ static void *writer_thread(void *arg)
 {
     retain_store_t *rs = arg;
 
-    pthread_mutex_lock(&rs->mu);
+    rt_thread_name("retain-writer");
     for (;;) {
-        while (!rs->outbox_full && !rs->stopping)
-            pthread_cond_wait(&rs->cv, &rs->mu);
-        if (!rs->outbox_full)
-            break;                                 /* stopping, nothing left */
-        uint64_t generation = rs->generation;
-        memcpy(rs->values, rs->outbox, rs->size);
-        rs->outbox_full = false;
-        pthread_mutex_unlock(&rs->mu);
-        save_file(rs, generation);
         pthread_mutex_lock(&rs->mu);
+        const bool full = rs->outbox_full, stopping = rs->stopping;
+        const uint64_t generation = rs->generation;
+        if (full) {
+            memcpy(rs->values, rs->outbox, rs->size);
+            rs->outbox_full = false;
+        }
+        pthread_mutex_unlock(&rs->mu);
+        if (full)
+            save_file(rs, generation);
+        else if (stopping)
+            break;                                 /* nothing left */
+        else
+            rt_wake_wait(&rs->wake, RT_WAKE_NEVER);
     }
-    pthread_mutex_unlock(&rs->mu);
     return NULL;
 }
 
@@ -927,12 +930,12 @@ int retain_open(runtime_t *rt, retain_store_t **out)
     }
     gather(rs, rs->seen);
     rs->dirty = true;            /* the first save after start writes this program's layout */
-    pthread_mutex_init(&rs->mu, NULL);
-    pthread_cond_init(&rs->cv, NULL);
+    rt_mutex_init(&rs->mu);
+    rt_wake_init(&rs->wake);
     if (pthread_create(&rs->writer, NULL, writer_thread, rs) != 0) {
         log_msg(rt->log, LOG_ERROR, "retain: cannot start the writer thread");
         pthread_mutex_destroy(&rs->mu);
-        pthread_cond_destroy(&rs->cv);
+        rt_wake_destroy(&rs->wake);
         free_store(rs);
         return -1;
     }
@@ -969,16 +972,18 @@ void retain_after_scan(runtime_t *rt, uint64_t now)
     /* Never wait for the writer: if it is busy, try again next scan. */
     if (pthread_mutex_trylock(&rs->mu) != 0)
         return;
-    if (!rs->outbox_full) {
+    const bool hand = !rs->outbox_full;
+    if (hand) {
         memcpy(rs->outbox, rs->seen, rs->size);
         rs->outbox_full = true;
         rs->generation++;
         rs->dirty = false;
         rs->last_handoff_ns = now;
         rs->handed_once = true;
-        pthread_cond_signal(&rs->cv);
     }
     pthread_mutex_unlock(&rs->mu);
+    if (hand)
+        rt_wake(&rs->wake);
 }
 
 void retain_close(runtime_t *rt)
@@ -995,13 +1000,13 @@ void retain_close(runtime_t *rt)
         rs->dirty = false;
     }
     rs->stopping = true;
-    pthread_cond_signal(&rs->cv);
     pthread_mutex_unlock(&rs->mu);
+    rt_wake(&rs->wake);
     pthread_join(rs->writer, NULL);
     log_msg(rt->log, LOG_INFO, "retain: %s up to date (%u saves this run%s)", rs->path,
             atomic_load(&rs->saves), atomic_load(&rs->last_failed) ? ", the last one FAILED" : "");
     pthread_mutex_destroy(&rs->mu);
-    pthread_cond_destroy(&rs->cv);
+    rt_wake_destroy(&rs->wake);
     free_store(rs);
     rt->retain = NULL;
 }

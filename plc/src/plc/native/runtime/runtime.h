@@ -15,6 +15,8 @@
  *   io_sim.c/io_none.c/io_modbus.c  the physical side of the image, behind io_layer_t
  *                    (io_modbus.c: remote I/O devices polled by their own threads)
  *   watchdog.c       forces outputs safe when run() never returns
+ *   realtime.c       priorities, priority-inheriting mutexes, lock-free wake-ups
+ *                    (README, "Threads, priorities and locks")
  *   notify.c         tells a service manager (systemd) ready, alive, stopping
  *   log.c            log lines and the live status line
  *   monitor.c, force.c, varpath.c, events.c  watch, write and force over a
@@ -30,6 +32,7 @@
 #define PLC_RUNTIME_H
 
 #include <pthread.h>
+#include <semaphore.h>
 #include <stdatomic.h>
 #include <stdbool.h>
 #include <stdint.h>
@@ -288,6 +291,23 @@ typedef struct scan_stats {
     uint64_t p50_scan_ns, p99_scan_ns, p50_wake_ns, p99_wake_ns;  /* refreshed periodically */
 } scan_stats_t;
 
+/* The live status line's figures (log.c), stored without a lock by the thread that owns each (scan,
+ * watchdog, Modbus server) and read by the log thread, which never takes the image lock.  Relaxed: the
+ * line is a display, each figure is whole, not the set. */
+typedef struct live_status {
+    atomic_uint state, fault_kind, fault_line;
+    atomic_ullong scans;
+    atomic_uint scan_last_us, scan_p99_us, scan_max_us, wake_p99_us, wake_max_us, overruns;
+    atomic_uint clients, requests;
+} live_status_t;
+
+/* A wake-up the scan thread gives without a lock (realtime.c): a semaphore, not a condition variable. */
+typedef struct rt_wake {
+    sem_t sem;
+} rt_wake_t;
+
+#define RT_WAKE_NEVER UINT64_MAX   /* rt_wake_wait: no time limit */
+
 /* ---------------------------------------------------------------- parts */
 
 typedef struct log_sink log_sink_t;
@@ -308,11 +328,11 @@ struct runtime {
     prog_image_t pimg;             /* scan thread only */
     plc_scan_t core;               /* the scan core bound to prog and pimg */
 
-    pthread_mutex_t lock;          /* guards bimg */
+    pthread_mutex_t lock;          /* guards bimg; priority-inheriting (README, "Threads, priorities and locks") */
     bus_image_t bimg;
 
     void *io_state;
-    pthread_mutex_t io_lock;       /* scan thread vs. watchdog at the I/O layer */
+    pthread_mutex_t io_lock;       /* scan thread vs. watchdog at the I/O layer; priority-inheriting */
     log_sink_t *log;
     modbus_server_t *server;
     retain_store_t *retain;
@@ -327,8 +347,10 @@ struct runtime {
     uint64_t refresh_every;        /* scans between two refreshes of the percentiles */
     _Atomic uint64_t run_started_ns;   /* when the current run() call began, 0 outside run() */
     atomic_bool watchdog_tripped;
+    atomic_bool scan_lowered;      /* the watchdog lowered the stuck scan thread to SCHED_IDLE */
 
-    plc_state_t state;             /* written by the scan thread only */
+    atomic_int state;              /* plc_state_t; written by the scan thread only, read by others */
+    live_status_t live;            /* the status line's figures */
     int32_t fault_kind;            /* why the program stopped (scan thread only) */
     int32_t fault_line, fault_col;
     scan_stats_t stats;            /* scan thread only; published to diag */
@@ -356,9 +378,22 @@ void image_host_write_register(bus_image_t *b, unsigned addr, uint16_t v);
 uint16_t image_prog_holding(const prog_image_t *p, unsigned addr);
 void image_prog_set_holding(prog_image_t *p, unsigned addr, uint16_t v);
 
-/* scan.c */
+/* realtime.c */
+void rt_mutex_init(pthread_mutex_t *m);             /* priority-inheriting */
+void rt_wake_init(rt_wake_t *w);
+void rt_wake_destroy(rt_wake_t *w);
+void rt_wake(rt_wake_t *w);                         /* never blocks: any thread, the scan's included */
+void rt_wake_wait(rt_wake_t *w, uint64_t until_ns); /* until woken or monotonic until_ns; may return early */
+void rt_thread_name(const char *name);              /* the calling thread's name, at most 15 characters */
+/* With real-time scheduling on, the calling thread becomes SCHED_FIFO at the scan's priority + offset (1..99).
+ * Returns the priority, 0 when real-time scheduling is off, or -errno when the kernel refused. */
+int rt_thread_fifo(const runtime_t *rt, int offset);
 void scan_setup_realtime(runtime_t *rt);            /* --cpu, --cpu-latency, then SCHED_FIFO: on the scan thread */
 void scan_release_realtime(runtime_t *rt);          /* lets go of the --cpu-latency request */
+bool scan_lower_stuck(runtime_t *rt);               /* the watchdog's: a SCHED_FIFO scan stuck in run() to SCHED_IDLE */
+void scan_raise_again(runtime_t *rt);               /* the scan's, outside run(): SCHED_FIFO again if lowered */
+
+/* scan.c */
 int scan_run(runtime_t *rt);
 uint64_t now_ns(void);
 

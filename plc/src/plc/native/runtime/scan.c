@@ -12,19 +12,18 @@
  * of running a burst of back-to-back scans.
  *
  * The loop never waits on the network or the disk: it takes rt->lock only to
- * copy images, and hands retained data to a writer thread.
+ * copy images, and hands retained data to a writer thread.  Every lock it takes
+ * is priority-inheriting or only trylocked, and its log lines go into a
+ * lock-free ring, time-stamped here and formatted by the log thread (README,
+ * "Threads, priorities and locks"; realtime.c).
  */
 #define _GNU_SOURCE
 #include <errno.h>
-#include <fcntl.h>
 #include <inttypes.h>
 #include <pthread.h>
-#include <sched.h>
 #include <signal.h>
 #include <string.h>
-#include <sys/mman.h>
 #include <time.h>
-#include <unistd.h>
 
 #include "runtime.h"
 #include "monitor.h"
@@ -96,90 +95,6 @@ uint64_t hist_percentile(const histogram_t *h, double p)
     return h->max_ns;
 }
 
-/* ------------------------------------------------------------ real time */
-
-/* --cpu: this thread only.  The other threads were started before and keep the
- * process's CPUs.  A failure is reported and the scan runs unpinned. */
-static void pin_scan_thread(runtime_t *rt)
-{
-    cpu_set_t set;
-    int rc;
-
-    if (rt->opt.cpu < 0)
-        return;
-    CPU_ZERO(&set);
-    CPU_SET(rt->opt.cpu, &set);
-    rc = pthread_setaffinity_np(pthread_self(), sizeof set, &set);
-    if (rc != 0)
-        log_msg(rt->log, LOG_WARN, "cannot pin the scan thread to CPU %d (%s); it runs on any CPU the "
-                "process may use", rt->opt.cpu, strerror(rc));
-    else
-        log_msg(rt->log, LOG_INFO, "scan thread pinned to CPU %d", rt->opt.cpu);
-}
-
-/* --cpu-latency: a PM QoS request, in force while the file stays open (the
- * kernel takes the lowest of all open requests; closing withdraws ours).  On a
- * CPU that sleeps between scans the wake-up waits for the idle state's exit: 0
- * keeps idle CPUs polling, as cyclictest does while it measures.  A failure is
- * reported and the scan runs with the kernel's idle states. */
-static void hold_cpu_latency(runtime_t *rt)
-{
-    int32_t us = rt->opt.cpu_latency_us;
-    int fd;
-
-    if (us < 0)
-        return;
-    fd = open("/dev/cpu_dma_latency", O_WRONLY | O_CLOEXEC);
-    if (fd < 0) {
-        log_msg(rt->log, LOG_WARN, "cannot limit the CPUs' idle exit latency to %d us (/dev/cpu_dma_latency: %s); "
-                "wake-up jitter will be higher", (int)us, strerror(errno));
-        return;
-    }
-    if (write(fd, &us, sizeof us) != (ssize_t)sizeof us) {
-        log_msg(rt->log, LOG_WARN, "cannot limit the CPUs' idle exit latency to %d us (writing "
-                "/dev/cpu_dma_latency: %s); wake-up jitter will be higher", (int)us, strerror(errno));
-        close(fd);
-        return;
-    }
-    rt->cpu_latency_fd = fd;
-    log_msg(rt->log, LOG_INFO, "CPU idle exit latency limited to %d us while running (PM QoS)%s", (int)us,
-            us == 0 ? ": idle CPUs poll" : "");
-}
-
-void scan_release_realtime(runtime_t *rt)
-{
-    if (rt->cpu_latency_fd >= 0)
-        close(rt->cpu_latency_fd);
-    rt->cpu_latency_fd = -1;
-}
-
-void scan_setup_realtime(runtime_t *rt)
-{
-    struct sched_param sp;
-    int rc;
-
-    pin_scan_thread(rt);
-    hold_cpu_latency(rt);
-    if (!rt->opt.realtime) {
-        log_msg(rt->log, LOG_INFO, "real-time scheduling off (--no-rt)");
-        return;
-    }
-    memset(&sp, 0, sizeof sp);
-    sp.sched_priority = rt->opt.rt_priority;
-    rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
-    if (rc != 0) {
-        log_msg(rt->log, LOG_WARN, "real-time scheduling not permitted (%s); the scan runs at normal "
-                "priority and wake-up jitter will be higher", strerror(rc));
-        return;
-    }
-    rt->flags |= DIAG_FLAG_REALTIME;
-    if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
-        log_msg(rt->log, LOG_WARN, "scan thread is SCHED_FIFO %d but memory could not be locked (%s)",
-                sp.sched_priority, strerror(errno));
-    else
-        log_msg(rt->log, LOG_INFO, "scan thread is SCHED_FIFO priority %d, memory locked", sp.sched_priority);
-}
-
 /* ---------------------------------------------------------------- faults */
 
 static const char *fault_name(int kind)
@@ -199,7 +114,7 @@ static void enter_fault(runtime_t *rt, int rc, uint64_t tick)
     const plc_fault_t *f = rt->prog->fault;
     int kind = rc == RT_FAULT_WATCHDOG ? rc : (f && f->kind) ? f->kind : rc;
 
-    rt->state = PLC_STATE_FAULTED;
+    atomic_store(&rt->state, PLC_STATE_FAULTED);
     if (kind == RT_FAULT_WATCHDOG) {
         rt->fault_kind = kind;
         rt->fault_line = rt->fault_col = 0;
@@ -224,6 +139,24 @@ static uint32_t us32(uint64_t ns)
     return us > UINT32_MAX ? UINT32_MAX : (uint32_t)us;
 }
 
+/* The status line's figures of this scan (log.c reads them without a lock). */
+static void publish_live(runtime_t *rt)
+{
+    live_status_t *l = &rt->live;
+    const scan_stats_t *s = &rt->stats;
+
+    atomic_store_explicit(&l->state, (unsigned)atomic_load(&rt->state), memory_order_relaxed);
+    atomic_store_explicit(&l->fault_kind, (unsigned)rt->fault_kind, memory_order_relaxed);
+    atomic_store_explicit(&l->fault_line, (unsigned)rt->fault_line, memory_order_relaxed);
+    atomic_store_explicit(&l->scans, s->scans, memory_order_relaxed);
+    atomic_store_explicit(&l->scan_last_us, us32(s->scan.last_ns), memory_order_relaxed);
+    atomic_store_explicit(&l->scan_p99_us, us32(s->p99_scan_ns), memory_order_relaxed);
+    atomic_store_explicit(&l->scan_max_us, us32(s->scan.max_ns), memory_order_relaxed);
+    atomic_store_explicit(&l->wake_p99_us, us32(s->p99_wake_ns), memory_order_relaxed);
+    atomic_store_explicit(&l->wake_max_us, us32(s->wake.max_ns), memory_order_relaxed);
+    atomic_store_explicit(&l->overruns, s->overruns, memory_order_relaxed);
+}
+
 /* Caller holds rt->lock. */
 static void publish_diag(runtime_t *rt, uint64_t started)
 {
@@ -231,7 +164,7 @@ static void publish_diag(runtime_t *rt, uint64_t started)
     const scan_stats_t *s = &rt->stats;
 
     diag_put16(b, DIAG_VERSION, 1);
-    diag_put16(b, DIAG_STATE, (uint16_t)rt->state);
+    diag_put16(b, DIAG_STATE, (uint16_t)atomic_load(&rt->state));
     diag_put16(b, DIAG_FAULT_KIND, (uint16_t)rt->fault_kind);
     diag_put16(b, DIAG_FAULT_LINE, (uint16_t)(rt->fault_line > 65535 ? 65535 : rt->fault_line < 0 ? 0 : rt->fault_line));
     diag_put16(b, DIAG_FAULT_COL, (uint16_t)(rt->fault_col > 65535 ? 65535 : rt->fault_col < 0 ? 0 : rt->fault_col));
@@ -361,6 +294,7 @@ static void rt_write_outputs(void *ctx, plc_image_t *image, int running)
     image_publish(rt);
     publish_diag(rt, rt->started_ns);
     pthread_mutex_unlock(&rt->lock);
+    publish_live(rt);
 
     pthread_mutex_lock(&rt->io_lock);
     rt->opt.io->write_outputs(rt->io_state, image->qx, running ? image->qw : no_words);
@@ -418,10 +352,11 @@ int scan_run(runtime_t *rt)
 
     rt->forces_flag = forces_flag_var(&rt->core, &rt->pimg);
 
-    rt->state = PLC_STATE_RUNNING;
+    atomic_store(&rt->state, PLC_STATE_RUNNING);
     pthread_mutex_lock(&rt->lock);
     publish_diag(rt, started);
     pthread_mutex_unlock(&rt->lock);
+    publish_live(rt);
     log_msg(rt->log, LOG_INFO, "running %s: scan period %.3f ms", prog->config_name ? prog->config_name : "program",
             period / 1e6);
 
@@ -444,8 +379,10 @@ int scan_run(runtime_t *rt)
         plc_scan_step(&rt->core, (int64_t)(rt->core.tick * prog->base_tick_ns));
         const uint64_t scanned = now_ns();
         hist_add(&s->core, scanned - begun);
+        if (atomic_load_explicit(&rt->scan_lowered, memory_order_relaxed))
+            scan_raise_again(rt);       /* run() returned after the watchdog had lowered this thread */
 
-        if (rt->state == PLC_STATE_RUNNING)
+        if (atomic_load(&rt->state) == PLC_STATE_RUNNING)
             retain_after_scan(rt, woke);
 
         const uint64_t done = now_ns();
@@ -473,14 +410,15 @@ int scan_run(runtime_t *rt)
      * acknowledged since the last scan still reach memory and retained data
      * (unless the program had faulted: then the last good scan's values stay). */
     notify_send(rt->notify, "STOPPING=1\nSTATUS=stopping: outputs going safe, saving retained data");
-    const bool was_running = rt->state == PLC_STATE_RUNNING;
-    rt->state = PLC_STATE_STOPPING;
+    const bool was_running = atomic_load(&rt->state) == PLC_STATE_RUNNING;
+    atomic_store(&rt->state, PLC_STATE_STOPPING);
     pthread_mutex_lock(&rt->lock);
     image_take_host_writes(rt);
     image_make_outputs_safe(&rt->pimg);
     image_publish(rt);
     publish_diag(rt, started);
     pthread_mutex_unlock(&rt->lock);
+    publish_live(rt);
     pthread_mutex_lock(&rt->io_lock);
     rt->opt.io->write_outputs(rt->io_state, rt->pimg.qx, no_words);
     pthread_mutex_unlock(&rt->io_lock);

@@ -10,6 +10,16 @@
  * in place of the stuck scan thread: it flushes the log and exits 0 (retained
  * data stay as of the last completed save).  If run() does return, the scan
  * thread sees the trip and stops the program like any other fault.
+ *
+ * With real-time scheduling on, this thread runs SCHED_FIFO one level above
+ * the scan: a scan spinning at SCHED_FIFO cannot keep it off the CPU, even
+ * with one CPU.  On a trip it lowers the stuck scan thread to SCHED_IDLE, so
+ * the threads below the scan (the Modbus server, the log) run again and the
+ * host can read the fault; the scan thread raises itself back to SCHED_FIFO
+ * if run() ever returns (realtime.c).  The locks it takes, rt->lock and
+ * rt->io_lock, are priority-inheriting: a thread holding one when the scan
+ * got stuck (the Modbus server, preempted by the scan on its CPU) is raised
+ * to this thread's priority until it lets go.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -48,8 +58,24 @@ static void force_outputs_safe(runtime_t *rt, uint64_t stuck_ns)
     rt->opt.io->write_outputs(rt->io_state, no_bits, no_words);
     pthread_mutex_unlock(&rt->io_lock);
 
+    atomic_store(&rt->live.state, PLC_STATE_FAULTED);
+    atomic_store(&rt->live.fault_kind, RT_FAULT_WATCHDOG);
+    atomic_store(&rt->live.fault_line, 0);
+    const bool lowered = scan_lower_stuck(rt);
     log_msg(rt->log, LOG_ERROR, "watchdog: the program has been inside run() for %.0f ms (limit %d ms); "
-            "outputs forced safe, program stopped, Modbus still serving", stuck_ns / 1e6, rt->opt.watchdog_ms);
+            "outputs forced safe, program stopped, Modbus still serving%s", stuck_ns / 1e6, rt->opt.watchdog_ms,
+            lowered ? "; the stuck scan thread lowered to SCHED_IDLE" : "");
+}
+
+static void setup_priority(const runtime_t *rt)
+{
+    rt_thread_name("watchdog");
+    int prio = rt_thread_fifo(rt, +1);
+    if (prio > 0)
+        log_msg(rt->log, LOG_INFO, "watchdog: thread is SCHED_FIFO priority %d, above the scan", prio);
+    else if (prio < 0)
+        log_msg(rt->log, LOG_WARN, "watchdog: thread at normal priority (SCHED_FIFO %d: %s): a scan stuck at "
+                "SCHED_FIFO may keep it from running", rt->opt.rt_priority + 1, strerror(-prio));
 }
 
 static void *watchdog_thread(void *arg)
@@ -60,6 +86,7 @@ static void *watchdog_thread(void *arg)
     sigset_t stop;
     struct timespec next;
 
+    setup_priority(rt);
     sigemptyset(&stop);
     sigaddset(&stop, SIGINT);
     sigaddset(&stop, SIGTERM);
@@ -114,7 +141,7 @@ int watchdog_start(runtime_t *rt, watchdog_t **out)
     if (!wd)
         return -1;
     wd->rt = rt;
-    pthread_mutex_init(&wd->mu, NULL);
+    rt_mutex_init(&wd->mu);
     pthread_condattr_init(&ca);
     pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
     pthread_cond_init(&wd->cv, &ca);
