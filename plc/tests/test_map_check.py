@@ -150,6 +150,28 @@ def test_unknown_key_and_bad_toml(project):
     assert "invalid TOML" in one_error(check(project), "invalid TOML")
 
 
+def test_mistakes_of_a_signal_a_section_and_the_reason_file_are_reported_together(project):
+    """map.toml and reason_codes.toml are read by the one TOML reader and checked by their schemas
+    (atc.map.model.SIGNAL, SECTIONS, REASON): a signal's misspelt key beside its wrong-typed address, a wrong type
+    in [link] and a reason without its text are reported in one run, each at its key, a misspelling with the key
+    it resembles."""
+    path = project / "modbus_map" / "map.toml"
+    at = edit(path, 'name = "ColletOpened"\ntable = "discrete_input"\naddress = ',
+              'name = "ColletOpened"\ntable = "discrete_input"\nadress = 1\naddress = "x" # ')
+    link = edit(path, "plc_timeout_ms = 1000\n", "plc_timeout_ms = \"1 s\"\n")
+    reasons = project / "modbus_map" / "reason_codes.toml"
+    before = reasons.read_text().splitlines()
+    reason = edit(reasons, 'text = "no fault"\n', "")
+    header = max(n for n, line in enumerate(before[:reason], 1) if line.startswith("[[reason]]"))
+    diags = Diagnostics()
+    load_and_check(path, diags)
+    found = {(d.pos.file, d.pos.line, d.message, d.hint) for d in diags.errors}
+    assert {("modbus_map/map.toml", at + 2, "signal: unknown key 'adress'", "did you mean 'address'?"),
+            ("modbus_map/map.toml", at + 3, "signal: address: expected an integer, got 'x'", None),
+            ("modbus_map/map.toml", link, "[link] plc_timeout_ms: expected an integer, got '1 s'", None),
+            ("modbus_map/reason_codes.toml", header, "reason: text is required", None)} <= found, found
+
+
 def test_hal_pins_are_iov2_pins_in_the_right_direction(project):
     path = project / "modbus_map" / "map.toml"
     edit(path, 'hal = "iocontrol.0.tool-prepared"', 'hal = "iocontrol.0.tool-prepare"')

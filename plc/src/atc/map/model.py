@@ -1,63 +1,27 @@
-"""Load the register map sources into dataclasses, remembering the line of every key.
+"""Load the register map sources into dataclasses, remembering where every key is written.
 
 `modbus_map/map.toml` lists the signals (one `[[signal]]` table each) and the link and LinuxCNC settings;
-`modbus_map/reason_codes.toml` lists the toolchanger reason codes (one `[[reason]]` table each).  tomllib
-gives no positions, so `KeyLines` scans the text once for table headers and `key =` lines: a problem is then
-reported as file:line of the key concerned.  Loading checks only shapes (types of values, unknown keys);
-`check` does the meaning.
+`modbus_map/reason_codes.toml` lists the toolchanger reason codes (one `[[reason]]` table each).  Both are read
+with the toolchain's one TOML reader (plc.tomlconf), which keeps the place of every key: a problem is reported at
+file:line:col of the key concerned.  Loading checks the shapes by schema (SIGNAL, REASON, SECTIONS: types of
+values, unknown keys, missing keys, all at once); `check` does the meaning.
 """
 from __future__ import annotations
 
-import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from plc import tomlconf
 from plc.diagnostics import Diagnostics, Pos
 from plc.project import where
+from plc.tomlconf import Bool, Field, Int, ListOf, Number, OneOf, Str, Table
 
 from .. import machine, project
 
 TABLES = ("coil", "discrete_input", "input_register", "holding_register")
 DIRECTIONS = ("input", "output", "plc_to_host", "host_to_plc")
 SEVERITIES = ("none", "hard", "soft")
-
-
-# ------------------------------------------------------------------ positions --
-class KeyLines:
-    """Line numbers of table headers and keys in a flat TOML file (arrays of tables and plain tables)."""
-
-    _header = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.-]+)\s*\]\]?")
-    _key = re.compile(r"^\s*([A-Za-z0-9_-]+)\s*=")
-
-    def __init__(self, path: str, text: str) -> None:
-        self.path = path
-        self.tables: dict[tuple[str, int], int] = {}      # (table name, index) -> header line
-        self.keys: dict[tuple[str, int, str], int] = {}   # (table name, index, key) -> line
-        counts: dict[str, int] = {}
-        current = ("", 0)
-        for number, line in enumerate(text.splitlines(), start=1):
-            m = self._header.match(line)
-            if m:
-                name = m.group(2)
-                if m.group(1) == "[[":
-                    index = counts.get(name, 0)
-                    counts[name] = index + 1
-                else:
-                    index = 0
-                current = (name, index)
-                self.tables[current] = number
-                continue
-            m = self._key.match(line)
-            if m:
-                self.keys.setdefault((current[0], current[1], m.group(1)), number)
-
-    def pos(self, table: str, index: int = 0, key: str | None = None) -> Pos:
-        line = self.keys.get((table, index, key)) if key else None
-        if line is None:
-            line = self.tables.get((table, index), 1)
-        return Pos(self.path, line, 1)
 
 
 # --------------------------------------------------------------------- model --
@@ -139,7 +103,7 @@ class LinuxCnc:
 class RegisterMap:
     path: Path
     root: Path                  # the repository (map.toml lives in <root>/modbus_map/)
-    lines: KeyLines
+    doc: tomlconf.Document      # map.toml as read: its values and the place of every key
     program: str = "AtcMain"
     program_file: str = "st_src/app/AtcMain.st"
     machine: str = ""           # the machine description the carousel lines come from (relative to map.toml;
@@ -153,7 +117,7 @@ class RegisterMap:
     signals: list[Signal] = field(default_factory=list)
     reasons: list[Reason] = field(default_factory=list)
     reasons_path: Path | None = None
-    reason_lines: KeyLines | None = None
+    reason_doc: tomlconf.Document | None = None
     reason_type: str = "DINT"
     reason_prefix: str = "REASON_"
     wiring_inputs: dict[str, str] = field(default_factory=dict)   # [wiring.inputs] pin -> ST expression
@@ -166,71 +130,68 @@ class RegisterMap:
     def pos(self, sig: Signal, key: str | None = None) -> Pos:
         if sig.origin is not None:
             return sig.origin
-        return self.lines.pos("signal", sig.index, key)
+        return self.doc.pos(("signal", sig.index) + ((key,) if key else ()))
 
     def reason_pos(self, reason: Reason, key: str | None = None) -> Pos:
-        assert self.reason_lines is not None
-        return self.reason_lines.pos("reason", reason.index, key)
+        assert self.reason_doc is not None
+        return self.reason_doc.pos(("reason", reason.index) + ((key,) if key else ()))
 
     def reasons_file_pos(self) -> Pos:
-        return Pos(self.reason_lines.path if self.reason_lines else "reason_codes.toml", 1, 1)
+        return Pos(self.reason_doc.file if self.reason_doc else "reason_codes.toml", 1, 1)
 
     def section_pos(self, section: str, key: str | None = None) -> Pos:
-        return self.lines.pos(section, 0, key)
+        return self.doc.pos((section,) + ((key,) if key else ()))
 
 
 # -------------------------------------------------------------------- loading --
-_SIGNAL_KEYS = {
-    "name": str, "table": str, "address": int, "type": str, "direction": str, "description": str,
-    "host_writable": bool, "retained": bool, "unit": str, "scale": (int, float), "enum": str, "states": list,
-    "hal": str,
+SIGNAL = Table((
+    Field("name", Str(), "the ST variable, HMI tag and mb2hal pin name", required=True),
+    Field("table", Str(), " | ".join(TABLES), required=True),
+    Field("address", Int(), "Modbus address, 0-based", required=True),
+    Field("type", Str(), "BOOL, INT, UINT, WORD, DINT, UDINT, DWORD or REAL", required=True),
+    Field("direction", Str(), " | ".join(DIRECTIONS), required=True),
+    Field("description", Str(), "one line: meaning, unit, safe value", required=True),
+    Field("host_writable", Bool(), default=False),
+    Field("retained", Bool(), default=False),
+    Field("unit", Str(), default=""),
+    Field("scale", Number()),
+    Field("enum", Str(), default=""),
+    Field("states", ListOf(Str(), "names"), "state names of an INT code, value = position", default=[]),
+    Field("hal", Str(), "an iov2 pin or a bare HAL signal name", default=""),
+))
+REASON = Table((
+    Field("code", Int(), required=True), Field("name", Str(), required=True),
+    Field("severity", Str(), " | ".join(SEVERITIES), required=True), Field("text", Str(), required=True),
+    Field("source", Str(), default=""), Field("rotary_error", Str(), default=""), Field("error_id", Int()),
+    Field("st_constant", Str(), default=""), Field("st_case", Str(), default=""), Field("cause", Str(), default=""),
+    Field("remedy", Str(), default=""),
+))
+# [map], [link], [linuxcnc]: each key sets the field of its name of RegisterMap, Link or LinuxCnc
+SECTIONS = {
+    "map": Table(tuple(Field(k, Str()) for k in ("program", "program_file", "configuration", "resource",
+                                                 "reason_codes", "machine", "application", "instance"))),
+    "link": Table((Field("plc_alive", Str()), Field("plc_alive_toggle_ms", Int()), Field("plc_timeout_ms", Int()),
+                   Field("host_heartbeat", Str()), Field("host_heartbeat_period_ms", Int()),
+                   Field("host_timeout_ms", Int()))),
+    "linuxcnc": Table((Field("host", Str()), Field("port", Int()), Field("slave_id", Int()), Field("component", Str()),
+                       Field("update_rate_hz", Number()), Field("response_timeout_ms", Int()),
+                       Field("settle_s", Number()), Field("settle", ListOf(Str(), "signal names")),
+                       Field("settle_fall", ListOf(Str(), "signal names")), Field("thread", Str()),
+                       Field("estop_chain", Str()))),
+    "signal": None, "wiring": None,
 }
-_REQUIRED = ("name", "table", "address", "type", "direction", "description")
-_REASON_KEYS = {"code": int, "name": str, "severity": str, "text": str, "source": str, "rotary_error": str,
-                "error_id": int, "st_constant": str, "st_case": str, "cause": str, "remedy": str}
-_SECTIONS = {
-    "map": {"program": str, "program_file": str, "configuration": str, "resource": str, "reason_codes": str,
-            "machine": str, "application": str, "instance": str},
-    "link": {"plc_alive": str, "plc_alive_toggle_ms": int, "plc_timeout_ms": int, "host_heartbeat": str,
-             "host_heartbeat_period_ms": int, "host_timeout_ms": int},
-    "linuxcnc": {"host": str, "port": int, "slave_id": int, "component": str, "update_rate_hz": (int, float),
-                 "response_timeout_ms": int, "settle_s": (int, float), "settle": list, "settle_fall": list, "thread": str,
-                 "estop_chain": str},
-}
+REASONS_HEAD = Table((Field("st_type", OneOf(("INT", "DINT")), "the ST type of the reason constants"),
+                      Field("constant_prefix", Str(), "the ST constants' prefix")))
+REASON_SECTIONS = {"reasons": REASONS_HEAD, "reason": None}
 
 
-def _type_ok(value: Any, want) -> bool:
-    if want is int or want == (int, float):
-        if isinstance(value, bool):
-            return False
-    return isinstance(value, want)
-
-
-def _type_name(want) -> str:
-    names = {str: "a string", int: "an integer", bool: "true or false", list: "a list"}
-    return names.get(want, "a number")
-
-
-def _read_toml(path: Path, diags: Diagnostics) -> tuple[dict | None, str]:
+def _read_toml(path: Path, label: str, diags: Diagnostics) -> tomlconf.Document | None:
+    """The document, None when it cannot be read or is not TOML (said in diags)."""
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        diags.error(Pos(str(path), 0, 0), "no such file")
-        return None, ""
-    except (OSError, UnicodeDecodeError) as exc:
-        diags.error(Pos(str(path), 0, 0), f"cannot read: {exc}")
-        return None, ""
-    try:
-        return tomllib.loads(text), text
-    except tomllib.TOMLDecodeError as exc:
-        line = getattr(exc, "lineno", None) or _line_of(str(exc))
-        diags.error(Pos(str(path), line, 1), f"invalid TOML: {exc}")
-        return None, text
-
-
-def _line_of(message: str) -> int:
-    m = re.search(r"line (\d+)", message)
-    return int(m.group(1)) if m else 0
+        return tomlconf.read(path, label)
+    except tomlconf.TomlError as exc:
+        diags.items.append(exc.diagnostic)
+        return None
 
 
 def display(path: Path, root: Path) -> str:
@@ -247,38 +208,41 @@ def load(path: Path, diags: Diagnostics, root: Path | None = None,
     lines come from the project's machine description, or from `described` when given (another machine file)."""
     path = Path(path)
     root = Path(root) if root is not None else where(path).parent.parent
-    data, text = _read_toml(path, diags)
-    if data is None:
+    doc = _read_toml(path, display(path, root), diags)
+    if doc is None:
         return None
-    lines = KeyLines(display(path, root), text)
-    rmap = RegisterMap(path=path, root=root, lines=lines)
-    for section in data:
-        if section not in _SECTIONS and section not in ("signal", "wiring"):
-            diags.error(lines.pos(section), f"unknown section [{section}]",
-                        "known: [map], [link], [linuxcnc], [[signal]]")
-    _load_section(data, "map", rmap, lines, diags)
-    _load_section(data, "link", rmap.link, lines, diags)
-    _load_section(data, "linuxcnc", rmap.linuxcnc, lines, diags)
-    _load_wiring(data.get("wiring", {}), rmap, lines, diags)
-    signals = data.get("signal", [])
+    rmap = RegisterMap(path=path, root=root, doc=doc)
+    checked = tomlconf.check_sections(doc, SECTIONS)
+    for section, target in (("map", rmap), ("link", rmap.link), ("linuxcnc", rmap.linuxcnc)):
+        for key, value in checked[section].values.items() if section in checked else ():
+            if key != "reason_codes":
+                number = isinstance(SECTIONS[section].field(key).kind, Number)
+                setattr(target, key, float(value) if number else value)
+    _load_wiring(doc.data.get("wiring", {}), rmap, doc)
+    signals = doc.data.get("signal", [])
+    if isinstance(signals, dict):
+        doc.error(("signal",), "signal must be an array of tables: [[signal]]")
     if not isinstance(signals, list):
-        diags.error(lines.pos("signal"), "signal must be an array of tables: [[signal]]")
-        signals = []
+        signals = []                            # a value: check_sections said so
     for i, table in enumerate(signals):
-        sig = _load_signal(i, table, lines, diags)
+        sig = _load_signal(i, table, doc)
         if sig is not None:
             rmap.signals.append(sig)
+    diags.items.extend(doc.diagnostics)
     if described is None:
         described = path.parent / rmap.machine if rmap.machine else rmap.root / project.description(rmap.root)
     if rmap.machine or described.is_file():
         _load_machine_lines(rmap, described, diags)
-    reasons_file = data.get("map", {}).get("reason_codes", "reason_codes.toml")
+    reasons_file = checked["map"].get("reason_codes", "reason_codes.toml") if "map" in checked else \
+        "reason_codes.toml"
     _load_reasons(rmap, path.parent / reasons_file, diags)
     return rmap
 
 
-def _load_wiring(table: dict, rmap: RegisterMap, lines: KeyLines, diags: Diagnostics) -> None:
+def _load_wiring(table: Any, rmap: RegisterMap, doc: tomlconf.Document) -> None:
     """[wiring.inputs] pin = "ST expression"; [wiring.series.Base] output = "ArrayPin", restore = "array"."""
+    if not isinstance(table, dict):
+        return                                  # check_sections said so
     for key, value in table.items():
         if key == "inputs" and isinstance(value, dict) and all(isinstance(v, str) for v in value.values()):
             rmap.wiring_inputs = dict(value)
@@ -286,9 +250,9 @@ def _load_wiring(table: dict, rmap: RegisterMap, lines: KeyLines, diags: Diagnos
                 isinstance(v, dict) and isinstance(v.get("output"), str) for v in value.values()):
             rmap.wiring_series = {b: (v["output"], v.get("restore", "")) for b, v in value.items()}
         else:
-            diags.error(lines.pos("wiring"), f"[wiring] {key}: not understood",
-                        "known: [wiring.inputs] pin = \"ST expression\", "
-                        "[wiring.series.Base] output = \"ArrayPin\", restore = \"array\"")
+            doc.error(("wiring", key), f"[wiring] {key}: not understood",
+                      "known: [wiring.inputs] pin = \"ST expression\", "
+                      "[wiring.series.Base] output = \"ArrayPin\", restore = \"array\"")
 
 
 def _load_machine_lines(rmap: RegisterMap, path: Path, diags: Diagnostics) -> None:
@@ -317,84 +281,39 @@ def _load_machine_lines(rmap: RegisterMap, path: Path, diags: Diagnostics) -> No
         rmap.signals.insert(at, sig)
 
 
-def _load_section(data: dict, section: str, target: Any, lines: KeyLines, diags: Diagnostics) -> None:
-    table = data.get(section, {})
-    if not isinstance(table, dict):
-        diags.error(lines.pos(section), f"'{section}' must be a table [{section}]")
-        return
-    for key, value in table.items():
-        want = _SECTIONS[section].get(key)
-        if want is None:
-            diags.error(lines.pos(section, 0, key), f"[{section}] unknown key '{key}'",
-                        "known: " + ", ".join(sorted(_SECTIONS[section])))
-        elif not _type_ok(value, want):
-            diags.error(lines.pos(section, 0, key), f"[{section}] {key} must be {_type_name(want)}")
-        elif key != "reason_codes":
-            setattr(target, key, float(value) if want == (int, float) else value)
-
-
-def _check_entry(kind: str, index: int, table: dict, known: dict, required, lines: KeyLines,
-                 diags: Diagnostics) -> bool:
-    """The keys of one [[kind]] table: none unknown, each of its type, the required ones there."""
-    ok = True
-    for key, value in table.items():
-        want = known.get(key)
-        if want is None:
-            diags.error(lines.pos(kind, index, key), f"{kind}: unknown key '{key}'",
-                        "known: " + ", ".join(sorted(known)))
-            ok = False
-        elif not _type_ok(value, want):
-            diags.error(lines.pos(kind, index, key), f"{kind}: {key} must be {_type_name(want)}")
-            ok = False
-    for key in required:
-        if key not in table:
-            diags.error(lines.pos(kind, index), f"{kind}: missing key '{key}'")
-            ok = False
-    return ok
-
-
-def _load_signal(index: int, table: dict, lines: KeyLines, diags: Diagnostics) -> Signal | None:
-    ok = _check_entry("signal", index, table, _SIGNAL_KEYS, _REQUIRED, lines, diags)
-    states = table.get("states", [])
-    if isinstance(states, list) and not all(isinstance(s, str) for s in states):
-        diags.error(lines.pos("signal", index, "states"), "signal: states must be a list of names")
-        ok = False
-    if not ok:
+def _load_signal(index: int, table: Any, doc: tomlconf.Document) -> Signal | None:
+    checked = SIGNAL.check(doc, ("signal", index), table, "signal:")
+    if not checked.ok:
         return None
-    return Signal(index=index, name=table["name"], table=table["table"], address=table["address"],
-                  type=table["type"].upper(), direction=table["direction"], description=table["description"],
-                  host_writable=table.get("host_writable", False), retained=table.get("retained", False),
-                  unit=table.get("unit", ""), scale=table.get("scale"), enum=table.get("enum", ""),
-                  states=list(states), hal=table.get("hal", ""))
+    return Signal(index=index, name=checked["name"], table=checked["table"], address=checked["address"],
+                  type=checked["type"].upper(), direction=checked["direction"], description=checked["description"],
+                  host_writable=checked["host_writable"], retained=checked["retained"], unit=checked["unit"],
+                  scale=checked.get("scale"), enum=checked["enum"], states=list(checked["states"]),
+                  hal=checked["hal"])
 
 
 def _load_reasons(rmap: RegisterMap, path: Path, diags: Diagnostics) -> None:
-    data, text = _read_toml(path, diags)
     rmap.reasons_path = path
-    rmap.reason_lines = KeyLines(display(path, rmap.root), text)
-    if data is None:
+    doc = _read_toml(path, display(path, rmap.root), diags)
+    if doc is None:
+        rmap.reason_doc = tomlconf.Document(display(path, rmap.root), "", {}, {})
         return
-    lines = rmap.reason_lines
-    for section in data:
-        if section not in ("reasons", "reason"):
-            diags.error(lines.pos(section), f"unknown section [{section}]", "known: [reasons], [[reason]]")
-    head = data.get("reasons", {})
-    for key, value in head.items() if isinstance(head, dict) else []:
-        if key == "st_type" and value in ("INT", "DINT"):
-            rmap.reason_type = value
-        elif key == "constant_prefix" and isinstance(value, str):
-            rmap.reason_prefix = value
-        else:
-            diags.error(lines.pos("reasons", 0, key), f"[reasons] {key} = {value!r} is not understood",
-                        "known: st_type = \"INT\" | \"DINT\", constant_prefix = \"...\"")
-    for i, table in enumerate(data.get("reason", [])):
-        if _check_entry("reason", i, table, _REASON_KEYS, ("code", "name", "severity", "text"), lines, diags):
-            rmap.reasons.append(Reason(index=i, code=table["code"], name=table["name"],
-                                       severity=table["severity"], text=table["text"],
-                                       source=table.get("source", ""), rotary_error=table.get("rotary_error", ""),
-                                       error_id=table.get("error_id"), st_constant=table.get("st_constant", ""),
-                                       st_case=table.get("st_case", ""), cause=table.get("cause", ""),
-                                       remedy=table.get("remedy", "")))
+    rmap.reason_doc = doc
+    checked = tomlconf.check_sections(doc, REASON_SECTIONS)
+    head = checked.get("reasons")
+    if head is not None:
+        rmap.reason_type = head.get("st_type", rmap.reason_type)
+        rmap.reason_prefix = head.get("constant_prefix", rmap.reason_prefix)
+    reasons = doc.data.get("reason", [])
+    for i, table in enumerate(reasons if isinstance(reasons, list) else []):
+        entry = REASON.check(doc, ("reason", i), table, "reason:")
+        if entry.ok:
+            rmap.reasons.append(Reason(index=i, code=entry["code"], name=entry["name"], severity=entry["severity"],
+                                       text=entry["text"], source=entry["source"],
+                                       rotary_error=entry["rotary_error"], error_id=entry.get("error_id"),
+                                       st_constant=entry["st_constant"], st_case=entry["st_case"],
+                                       cause=entry["cause"], remedy=entry["remedy"]))
+    diags.items.extend(doc.diagnostics)
 
 
 def reason_order(reason: Reason) -> tuple[int, int]:
