@@ -11,7 +11,6 @@ from __future__ import annotations
 import hashlib
 import os
 import subprocess
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -177,7 +176,8 @@ def test_going_back_to_version_1_finds_the_values_kept_aside(base, tmp_path):
     assert [(e.path, e.type, e.number()) for e in aside] == [(P + "B", "INT", 222)]
     with h.Runtime(base, "--no-rt", "--retain", str(retain)) as rt, h.Client(rt.port) as c:
         first_scan(c)
-        rt.wait_for(rf"retain: {P}B changed type from DINT to INT: its saved value is kept aside")
+        rt.wait_for(rf"retain: {P}B changed type from DINT to INT: its INT value kept aside earlier is restored "
+                    r"and the DINT value is kept aside in the file")
         assert c.read_holding(SHOW_A, 2) == [111, 222] and c.read_holding(TOOL, 1) == [5]
     aside = retainfile.read(retain).kept_aside()
     assert [(e.path, e.type, e.number()) for e in aside] == [(P + "B", "DINT", -5)]

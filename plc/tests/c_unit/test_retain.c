@@ -877,8 +877,9 @@ static void going_back_to_the_earlier_version_restores_what_was_set_aside(void)
     CHECK_UINT(rt->pimg.mw[16], 7);
     CHECK_INT(logcap_count("warning: retain: " M "TOOL (INT) restored by address %MW0, where " M "SPINDLE was saved"),
               1);
-    CHECK_INT(logcap_count("warning: retain: " M "SCANS changed type from DINT to UDINT: its saved value is kept "
-                           "aside in the file"), 1);
+    CHECK_INT(logcap_count("warning: retain: " M "SCANS changed type from DINT to UDINT: its UDINT value kept "
+                           "aside earlier is restored and the DINT value is kept aside in the file"), 1);
+    CHECK_INT(logcap_count("starts from its initial value"), 0);
     CHECK_INT(logcap_count("warning: retain: " M "NEW (DINT) is not retained by this program"), 1);
     CHECK_INT(logcap_count("restored 5 of 5 values from"), 1);
     CHECK_INT(logcap_count("(0 new, 2 kept aside now, 0 from earlier versions)"), 1);

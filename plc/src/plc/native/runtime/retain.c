@@ -571,9 +571,15 @@ static void match_entries(retain_store_t *rs, saved_entry_t *saved, uint32_t n_s
             still++;
             log_msg(log, LOG_INFO, "retain: %.*s (%.*s) still kept aside from an earlier program version",
                     s->path.n, s->path.p, s->type.n, s->type.p);
+        } else if (e && e->restored) {
+            /* Back to an earlier version: e came from a value kept aside, the newer version's value goes aside. */
+            lost++;
+            log_msg(log, LOG_WARN, "retain: %s changed type from %.*s to %s: its %s value kept aside earlier is "
+                    "restored and the %.*s value is kept aside in the file", e->path, s->type.n, s->type.p,
+                    e->type, e->type, s->type.n, s->type.p);
         } else if (e) {
             lost++;
-            e->announced = !e->restored;
+            e->announced = true;
             log_msg(log, LOG_WARN, "retain: %s changed type from %.*s to %s: its saved value is kept aside in "
                     "the file and %s starts from its initial value", e->path, s->type.n, s->type.p, e->type,
                     e->path);
