@@ -251,6 +251,11 @@ def test_missing_end_var():
     assert (4, 1, "expected END_VAR to close VAR opened at 2:1") in errs
 
 
+def test_on_as_an_enumeration_value_is_an_error():
+    # ON is reserved in MATIEC, and a keyword of ours too (RESOURCE r ON PLC): never a value
+    assert errors("TYPE E_Power : (Off, On); END_TYPE\n")[0] == \
+        (1, 22, "'On' is a keyword and cannot be used as an enumeration value")
+
 
 def test_a_syntax_error_is_reported_once_and_the_other_pous_are_still_checked():
     # issue 27: after one syntax error a cascade error, and the semantic errors elsewhere were the question
@@ -291,11 +296,11 @@ def test_type_named_like_an_openplc_library_identifier():
 
 
 def test_line_comment():
-    assert pw(prog(OK_DECLS, "x := 1; // set x")) == [("portability.comment", 3, 9)]
+    assert pw(prog(OK_DECLS, "x := 1; // set x")) == [("portability.comment-line", 3, 9)]
 
 
 def test_block_comment():
-    assert pw(prog(OK_DECLS, "/* set x */ x := 1;")) == [("portability.comment", 3, 1)]
+    assert pw(prog(OK_DECLS, "/* set x */ x := 1;")) == [("portability.comment-block", 3, 1)]
 
 
 def test_enum_with_explicit_values():
@@ -342,7 +347,8 @@ CELL = ("CONFIGURATION Cell\nRESOURCE Cpu ON PLC\nTASK t0(INTERVAL := T#4ms, PRI
 
 def test_configuration_and_resource_names_for_openplc():
     src = prog(OK_DECLS, "x := 1;") + CELL
-    assert pw(src, target="openplc") == [("portability.openplc-names", 5, 1), ("portability.openplc-names", 6, 1)]
+    assert pw(src, target="openplc") == \
+        [("portability.openplc-configuration", 5, 1), ("portability.openplc-resource", 6, 1)]
     assert pw(src) == []                                    # only with --target openplc
     assert pw(src.replace("Cell", "Config0").replace("Cpu", "Res0"), target="openplc") == []
 
@@ -350,7 +356,8 @@ def test_configuration_and_resource_names_for_openplc():
 def test_configuration_names_are_checked_after_a_type_declaration_too():
     # regression: a TYPE before the CONFIGURATION used to switch the openplc check off
     src = "TYPE\n    Count : INT;\nEND_TYPE\n" + prog(OK_DECLS, "x := 1;") + CELL
-    assert [c for c, _l, _col in pw(src, target="openplc")] == ["portability.openplc-names"] * 2
+    assert [c for c, _l, _col in pw(src, target="openplc")] == \
+        ["portability.openplc-configuration", "portability.openplc-resource"]
 
 
 def test_var_block_mixing_located_and_unlocated_variables():
@@ -366,7 +373,7 @@ def test_function_call_as_a_statement():
 def test_variable_named_like_a_type():
     src = "TYPE E_Mode : (Idle, Moving); END_TYPE\n" + \
         prog("VAR e_mode : INT; tOn : TON; timer1 : TON; END_VAR", "e_mode := 1;")
-    assert pw(src) == [("portability.var-type-name", 3, 5), ("portability.var-type-name", 3, 19)]
+    assert pw(src) == [("portability.var-type-name", 3, 5), ("portability.var-own-type-name", 3, 19)]
 
 
 def test_variable_named_like_a_keyword():
@@ -380,7 +387,7 @@ def test_variable_named_like_a_standard_function():
 
 def test_identifier_with_double_or_trailing_underscore():
     assert pw(prog("VAR a__b : INT; ab_ : INT; END_VAR", "a__b := 1;")) == \
-        [("portability.identifier", 2, 5), ("portability.identifier", 2, 17)]
+        [("portability.identifier-double-underscore", 2, 5), ("portability.identifier-trailing-underscore", 2, 17)]
 
 
 def test_empty_statement_lists_and_stray_semicolons():

@@ -65,7 +65,7 @@ class Diagnostic:
     pos: Pos
     message: str
     hint: str | None = None
-    code: str | None = None   # stable identifier, e.g. "portability.comment"
+    code: str | None = None   # stable identifier, e.g. "portability.comment-line"
     source_line: str = ""     # the offending line, for tools that keep it instead of a SourceSet
     width: int = 1            # how many characters the caret underlines
     layout: Layout = GCC
@@ -134,8 +134,9 @@ class Diagnostics:
     def warning(self, pos: Pos, message: str, hint: str | None = None, code: str | None = None) -> None:
         self.items.append(Diagnostic("warning", pos, message, hint, code))
 
-    def portable(self, pos: Pos, message: str, hint: str | None = None, code: str = "portability") -> None:
-        """A portability warning: what our compiler accepts but MATIEC/OpenPLC does not."""
+    def portable(self, pos: Pos, message: str, hint: str | None, code: str) -> None:
+        """A portability warning: what our compiler accepts but MATIEC/OpenPLC does not (written by
+        portability.warn only, `code` naming the rule of portability.RULES)."""
         if self.portability:
             self.items.append(Diagnostic("warning", pos, f"portability: {message}", hint, code))
 

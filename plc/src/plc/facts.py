@@ -19,7 +19,9 @@ class Rule:
     hint: str | None = None
 
 
-# rule -> warning; the diagnostic code is "portability." + the rule name ("comment-*" share "portability.comment")
+# rule -> warning; a warning's diagnostic code is "portability." + its rule (docs/matiec.md lists every rule with
+# what MATIEC or OpenPLC does).  The lexer, the parser and the semantic passes record the first group as facts; the
+# portability pass finds the second group itself, in the names and statement lists of the program.
 RULES: dict[str, Rule] = {
     "anon-enum": Rule("anonymous enumeration in a variable declaration", "declare the enumeration in a TYPE block"),
     "anon-struct": Rule("anonymous STRUCT in a variable declaration", "declare it in a TYPE block"),
@@ -33,7 +35,6 @@ RULES: dict[str, Rule] = {
     "comment-line": Rule("'//' comments are not accepted by MATIEC", "use (* ... *)"),
     "empty-call": Rule("a call with no arguments F() is not accepted by MATIEC"),
     "enum-base": Rule("enumerations with a base type are IEC edition 3"),
-    "enum-on": Rule("'ON' is reserved in MATIEC and cannot be an enumeration value"),
     "enum-order": Rule("'{op}' on enumeration values is rejected by MATIEC", "compare with = or <>"),
     "enum-qualify": Rule("'{value}' is a value of several enumerations ({enums}); MATIEC needs it qualified",
                          "write {enum}#{value}"),
@@ -65,18 +66,40 @@ RULES: dict[str, Rule] = {
                               "initialise the elements in code"),
     "subrange-default": Rule("MATIEC starts an inline subrange variable at 0, not at its lower bound {lo}",
                              "give it an initial value, or declare the subrange as a TYPE"),
-    "type-order": Rule("TYPE {type} uses {used}, which this file declares further down (line {line}): MATIEC reads "
-                       "a file in order and rejects it", "declare {used} before {type}"),
     "time-conversion": Rule("{call} counts seconds in OpenPLC's MATIEC (not milliseconds)",
                             "keep durations as TIME and compare TIME values"),
     "time-unit": Rule("'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
                       "write fractions of ms, e.g. T#1.5ms"),
     "wstring": Rule("double-quoted WSTRING literals are not supported by OpenPLC"),
+    # found by the portability pass
+    "empty-body": Rule("no statement in {where}: MATIEC rejects an empty statement list",
+                       "put at least one statement there"),
+    "empty-statement": Rule("an empty statement ';' is rejected by MATIEC"),
+    "enum-value-name": Rule("enumeration value '{value}' is {clash}: MATIEC rejects it", "choose another name"),
+    "function-without-vars": Rule("FUNCTION {function} declares no variables: MATIEC does not recognise it as a "
+                                  "function", "declare at least one VAR_INPUT or VAR block"),
+    "identifier-double-underscore": Rule("identifier '{name}' contains '__' (reserved by MATIEC's C output)"),
+    "identifier-trailing-underscore": Rule("identifier '{name}' ends with '_' (rejected by MATIEC)"),
+    "library-name": Rule("{what} name '{name}' collides with OpenPLC's library (iec2c -p fails or crashes)",
+                         "rename it, e.g. with a prefix FB_, F_, E_ or ST_"),
+    "openplc-configuration": Rule("OpenPLC needs CONFIGURATION Config0 (found '{name}')"),
+    "openplc-resource": Rule("OpenPLC needs RESOURCE Res0 (found '{name}')"),
+    "type-alias": Rule("TYPE {type} renames {kind} ({aliased}): MATIEC's C output does not compile",
+                       "use {aliased} itself"),
+    "type-order": Rule("TYPE {type} uses {used}, which this file declares further down (line {line}): MATIEC reads "
+                       "a file in order and rejects it", "declare {used} before {type}"),
+    "var-keyword": Rule("variable '{name}' is a keyword to MATIEC"),
+    "var-library-block": Rule("variable '{name}' is named like a function block of OpenPLC's library"),
+    "var-own-type-name": Rule("variable '{name}' is named like its own type (differing only in case)",
+                              "choose another name"),
+    "var-std-name": Rule("variable '{name}' is named like a standard function"),
+    "var-type-name": Rule("variable '{name}' is named like a type", "choose another name"),
 }
 
 
 def rule_code(rule: str) -> str:
-    return "portability." + ("comment" if rule.startswith("comment-") else rule)
+    """The diagnostic code of a rule's warning."""
+    return "portability." + rule
 
 
 @dataclass(frozen=True)

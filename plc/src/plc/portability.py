@@ -6,7 +6,8 @@ check them, so they record a `Fact` there (`fact(rule, pos, **details)`: the
 lexer's and the parser's ride on the file's `SourceFile.facts`, the semantic
 passes' on `Program.facts`, built-in files left out), and `lint`, the
 portability pass, turns every fact into the rule's warning (`--no-portability`
-silences them all).  Only this module writes portability warnings.
+silences them all).  Only this module writes portability warnings, and
+each is a rule of RULES: what the pass finds itself goes through `report`.
 
 `lint`, run after the semantic passes, also looks at names:
 POU and TYPE names that collide with OpenPLC's library, identifiers MATIEC's
@@ -33,6 +34,11 @@ def warn(facts: list[Fact], diags: Diagnostics) -> None:
         details = dict(f.details)
         diags.portable(f.pos, r.message.format(**details), r.hint.format(**details) if r.hint else None,
                        code=rule_code(f.rule))
+
+
+def report(diags: Diagnostics, rule: str, pos, **details) -> None:
+    """The warning of `rule` at `pos`, for what the portability pass finds itself."""
+    warn([fact(rule, pos, **{k: str(v) for k, v in details.items()})], diags)
 
 
 # Identifiers MATIEC's parser refuses as variable names besides our keywords (measured with iec2c -p).
@@ -75,9 +81,7 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                 if not errors_inside(item, diags):   # a syntax error may have emptied a statement list
                     statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
                 if item.kind == "FUNCTION" and not item.blocks:
-                    diags.portable(item.pos, f"FUNCTION {item.text} declares no variables: MATIEC does not "
-                                   "recognise it as a function", "declare at least one VAR_INPUT or VAR block",
-                                   code="portability.function-without-vars")
+                    report(diags, "function-without-vars", item.pos, function=item.text)
                 for d in item.decls():
                     var_name(d, prog, diags, lib)
             elif isinstance(item, A.TypeBlock):
@@ -86,17 +90,15 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                     aliased = prog.types.get(td.spec.name) if isinstance(td.spec, A.TypeRef) else None
                     if isinstance(aliased, (EnumType, StructType)):
                         kind = "an enumeration" if isinstance(aliased, EnumType) else "a STRUCT"
-                        diags.portable(td.pos, f"TYPE {td.text} renames {kind} ({td.spec.text or td.spec.name}): "
-                                       "MATIEC's C output does not compile", f"use {td.spec.text or td.spec.name} itself",
-                                       code="portability.type-alias")
+                        report(diags, "type-alias", td.pos, type=td.text, kind=kind,
+                               aliased=td.spec.text or td.spec.name)
                     if isinstance(td.spec, A.EnumSpec):
                         ambiguous_initial_value(td, enum_owners, diags)
                         for k, (v, pos, _x) in enumerate(td.spec.values):
                             text = td.spec.texts[k] if k < len(td.spec.texts) else v
                             clash = name_clash(v, prog, lib)
                             if ident_shape(v, text, pos, diags) and clash:
-                                diags.portable(pos, f"enumeration value '{text}' is {clash}: MATIEC rejects it",
-                                               "choose another name", code="portability.enum-value-name")
+                                report(diags, "enum-value-name", pos, value=text, clash=clash)
                     if isinstance(td.spec, A.StructSpec):
                         for m in td.spec.members:
                             ident_shape(m.name, m.text, m.pos, diags)
@@ -131,8 +133,8 @@ def ambiguous_initial_value(td: A.TypeDecl, owners: dict[str, list[str]], diags:
         return
     others = [t for t in owners.get(td.init.name.upper(), []) if t.upper() != td.name.upper()]
     if others:      # the expression pass cannot see it when the other enumeration is declared after this TYPE
-        warn([fact("enum-qualify", td.init.pos, value=td.init.text or td.init.name,
-                   enums=", ".join([td.text, *others]), enum=td.text)], diags)
+        report(diags, "enum-qualify", td.init.pos, value=td.init.text or td.init.name,
+               enums=", ".join([td.text, *others]), enum=td.text)
 
 
 def type_order(f: A.SourceFile, prog, diags: Diagnostics) -> None:
@@ -153,7 +155,7 @@ def type_order(f: A.SourceFile, prog, diags: Diagnostics) -> None:
                 if isinstance(spec, A.TypeRef) and spec.name.upper() in declared and spec.name.upper() not in seen \
                         and spec.name.upper() != td.name.upper():
                     later = declared[spec.name.upper()]
-                    warn([fact("type-order", pos, type=td.text, used=later.text, line=later.pos.line)], diags)
+                    report(diags, "type-order", pos, type=td.text, used=later.text, line=later.pos.line)
             seen.add(td.name.upper())
 
 
@@ -166,11 +168,10 @@ def errors_inside(pou: A.Pou, diags: Diagnostics) -> bool:
 def statement_lists(body: list[A.Stmt], pos, where: str, diags: Diagnostics) -> None:
     """MATIEC rejects an empty statement list (a POU body, THEN, ELSE, DO, a CASE arm) and a stray ';'."""
     if not any(not isinstance(s, A.Empty) for s in body):
-        diags.portable(pos, f"no statement in {where}: MATIEC rejects an empty statement list",
-                       "put at least one statement there", code="portability.empty-body")
+        report(diags, "empty-body", pos, where=where)
     for s in body:
         if isinstance(s, A.Empty):
-            diags.portable(s.pos, "an empty statement ';' is rejected by MATIEC", code="portability.empty-statement")
+            report(diags, "empty-statement", s.pos)
         elif isinstance(s, A.If):
             for k, (_c, b) in enumerate(s.branches):
                 statement_lists(b, s.pos, "the IF branch" if k == 0 else "an ELSIF branch", diags)
@@ -187,11 +188,10 @@ def statement_lists(body: list[A.Stmt], pos, where: str, diags: Diagnostics) -> 
 
 def ident_shape(name: str, text: str, pos, diags: Diagnostics) -> bool:
     if "__" in name:
-        diags.portable(pos, f"identifier '{text}' contains '__' (reserved by MATIEC's C output)",
-                       code="portability.identifier")
+        report(diags, "identifier-double-underscore", pos, name=text)
         return False
     if name.endswith("_"):
-        diags.portable(pos, f"identifier '{text}' ends with '_' (rejected by MATIEC)", code="portability.identifier")
+        report(diags, "identifier-trailing-underscore", pos, name=text)
         return False
     return True
 
@@ -200,8 +200,7 @@ def pou_name(name: str, text: str, pos, what: str, lib, diags: Diagnostics) -> N
     if not ident_shape(name, text, pos, diags):
         return
     if name in lib:
-        diags.portable(pos, f"{what} name '{text}' collides with OpenPLC's library (iec2c -p fails or crashes)",
-                       "rename it, e.g. with a prefix FB_, F_, E_ or ST_", code="portability.library-name")
+        report(diags, "library-name", pos, what=what, name=text)
 
 
 def name_clash(name: str, prog, lib) -> str | None:
@@ -222,19 +221,21 @@ def var_name(d: A.VarDecl, prog, diags: Diagnostics, lib) -> None:
     if not ident_shape(name, d.text, d.pos, diags):
         return
     clash = name_clash(name, prog, lib)
+    if clash is None:
+        return
     if clash == "named like a type":
-        same = name == getattr(d.spec, "name", None)
-        diags.portable(d.pos, f"variable '{d.text}' is named like a type"
-                       + (" (differing only in case)" if same else ""),
-                       "choose another name", code="portability.var-type-name")
-    elif clash == "a keyword to MATIEC":
-        diags.portable(d.pos, f"variable '{d.text}' is a keyword to MATIEC", code="portability.var-keyword")
-    elif clash == "named like a standard function":
-        diags.portable(d.pos, f"variable '{d.text}' is named like a standard function",
-                       code="portability.var-std-name")
-    elif clash:
-        diags.portable(d.pos, f"variable '{d.text}' is named like a function block of OpenPLC's library",
-                       code="portability.var-library-block")
+        rule = "var-own-type-name" if name == getattr(d.spec, "name", None) else "var-type-name"
+    else:
+        rule = VAR_CLASH_RULES[clash]
+    report(diags, rule, d.pos, name=d.text)
+
+
+# name_clash's other answers for a variable -> the rule of its warning
+VAR_CLASH_RULES = {
+    "a keyword to MATIEC": "var-keyword",
+    "named like a standard function": "var-std-name",
+    "named like a function block of OpenPLC's library": "var-library-block",
+}
 
 
 # Library function blocks whose names also break variables (measured with iec2c -p).
@@ -245,8 +246,7 @@ def config_names(cfg: A.Configuration, diags: Diagnostics, target: str | None) -
     if target != "openplc":
         return
     if cfg.text != "Config0":
-        diags.portable(cfg.pos, f"OpenPLC needs CONFIGURATION Config0 (found '{cfg.text}')",
-                       code="portability.openplc-names")
+        report(diags, "openplc-configuration", cfg.pos, name=cfg.text)
     for r in cfg.resources:
         if r.text and r.text != "Res0":
-            diags.portable(r.pos, f"OpenPLC needs RESOURCE Res0 (found '{r.text}')", code="portability.openplc-names")
+            report(diags, "openplc-resource", r.pos, name=r.text)

@@ -109,8 +109,6 @@ class TypePass(Pass):
                 if v in vals:
                     self.err(pos, f"duplicate enumeration value '{v}'")
                     continue
-                if v == "ON":
-                    self.port(pos, "enum-on")
                 vals.append(v)
             if spec.base is not None:
                 self.port(spec.pos, "enum-base")
