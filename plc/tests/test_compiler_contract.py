@@ -190,6 +190,41 @@ def test_an_internal_error_reaches_the_command_line_as_exit_3_with_its_position_
     assert "bug of the compiler" in err and "Traceback" not in err
 
 
+GOOD = SRC + ("CONFIGURATION Config0\nRESOURCE Res0 ON PLC\nTASK t0(INTERVAL := T#4ms, PRIORITY := 0);\n"
+               "PROGRAM i0 WITH t0 : Main;\nEND_RESOURCE\nEND_CONFIGURATION\n")
+
+
+def test_c_that_the_c_compiler_rejects_is_an_internal_error_exit_3_keeping_the_c_and_the_compiler_output(
+        tmp_path, monkeypatch, capsys):
+    """plc build runs $CC on the C it generated; a failure there is a bug of plc, not a problem of the program."""
+    from plc import cli
+    fake_cc = tmp_path / "fake-cc"
+    fake_cc.write_text("#!/bin/sh\necho 'program.c:7:3: error: the fake compiler refuses this' >&2\nexit 1\n")
+    fake_cc.chmod(0o755)
+    monkeypatch.setenv("CC", str(fake_cc))
+    src, out = tmp_path / "t.st", tmp_path / "out"
+    src.write_text(GOOD)
+    assert cli.main(["build", str(src), "--out", str(out)]) == 3
+    err = capsys.readouterr().err
+    c_file, log = out / "program.c", out / "program.cc.log"
+    assert err.startswith("plc: internal compiler error: the C compiler rejected the C generated for the program:\n"
+                          "  program.c:7:3: error: the fake compiler refuses this\n")
+    assert f"the generated C is kept in {c_file}, the C compiler's output in {log}" in err
+    assert "bug of the compiler, not of your program" in err and "Traceback" not in err
+    assert "plc_program" in c_file.read_text()
+    kept = log.read_text()
+    assert kept.startswith(f"$ {fake_cc} ") and str(c_file) in kept.splitlines()[0]
+    assert "the fake compiler refuses this" in kept
+    assert not (out / "program.o").exists()
+
+
+def test_plc_help_names_the_exit_codes(capsys):
+    from plc import cli
+    help_text = " ".join(cli.parser().format_help().split())
+    assert "Exit codes: 0 success; 1 the input has errors, or tests failed; 2 usage or environment" in help_text
+    assert "3 an internal compiler error, a bug of plc" in help_text
+
+
 def test_the_stages_record_facts_and_only_the_portability_pass_warns():
     """Lexer, parser and semantic passes record portability facts; the warnings appear in the portability pass."""
     from plc import portability

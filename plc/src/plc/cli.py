@@ -1,7 +1,8 @@
 """The `plc` command: the integrator's front door.
 
-Exit codes: 0 success, 1 the input has errors (or tests failed), 2 usage or
-environment problems.  User errors never print a Python traceback.
+Exit codes (EXIT_CODES, also in `plc --help`): 0 success, 1 the input has errors
+(or tests failed), 2 usage or environment problems, 3 an internal compiler error.
+User errors never print a Python traceback.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from pathlib import Path
 
 from . import __version__, extensions, retainfile, runtime, testrunner
 from .diagnostics import InternalError
-from .driver import UserError, compile_c, compile_sources, print_diagnostics
+from .driver import GeneratedCError, UserError, compile_c, compile_sources, print_diagnostics
 from .project import add_view_options, choose_view, project_root, refused_by_preflight, where
 from .project import run_config as project_run_config
 
@@ -137,12 +138,18 @@ def add_compile_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
 
 
+EXIT_CODES = ("Exit codes: 0 success; 1 the input has errors, or tests failed; 2 usage or environment problems "
+              "(a missing file or C compiler, a port in use); 3 an internal compiler error, a bug of plc and not "
+              "of the program (a compiler stage met a construct it does not handle, or the C compiler rejected "
+              "the generated C, which is then kept with the C compiler's output).")
+
+
 def parser() -> argparse.ArgumentParser:
     views = extensions.load().views
     ap = argparse.ArgumentParser(prog="plc", description="atc-plc toolchain: check, build, test and run "
                                  "IEC 61131-3 Structured Text for the soft-PLC and OpenPLC.",
-                                 epilog=" ".join(f"{v.flag} {v.metavar}, given to a command of the project: {v.help}."
-                                                 for v in views) or None)
+                                 epilog=" ".join([*(f"{v.flag} {v.metavar}, given to a command of the project: "
+                                                    f"{v.help}." for v in views), EXIT_CODES]))
     ap.add_argument("--version", action="version", version=f"plc {__version__}")
     sub = ap.add_subparsers(dest="cmd", metavar="COMMAND")
     p = sub.add_parser("check", help="report errors and portability warnings", description=
@@ -217,6 +224,11 @@ def main(argv: list[str] | None = None) -> int:
         # a node kind a compiler stage does not handle: a bug of the compiler, never silent C
         print(f"{e}\nplc: this is a bug of the compiler, not of your program: please report it with the input",
               file=sys.stderr)
+        return 3
+    except GeneratedCError as e:
+        # C generated from a program that checked clean does not compile: a bug of the compiler too
+        print(f"plc: {e}\nplc: this is a bug of the compiler, not of your program: please report it with the "
+              "input, the generated C and the C compiler's output", file=sys.stderr)
         return 3
     except KeyboardInterrupt:
         print("plc: interrupted", file=sys.stderr)

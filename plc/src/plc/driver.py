@@ -10,6 +10,7 @@ import functools
 import hashlib
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -275,19 +276,36 @@ def cc() -> str:
     raise UserError("no C compiler found (install gcc)")
 
 
-def compile_c(c_file: Path, out: Path, *, extra: list[str] | None = None, link: bool = False,
-              sources: list[Path] | None = None, libs: list[str] | None = None) -> None:
-    cmd = [cc(), *CFLAGS, f"-I{INCLUDE}", *(extra or [])]
-    if not link:
-        cmd += ["-c"]
-    cmd += [str(c_file), *[str(s) for s in (sources or [])], "-o", str(out)]
-    if link:
-        cmd += ["-lm", *(libs or [])]
+class GeneratedCError(Exception):
+    """The C compiler refused C that plc generated from a program that checked clean: a bug of plc's compiler,
+    never of the user's program (an internal error, exit 3).  The C and the C compiler's output are kept."""
+
+    def __init__(self, c_file: Path, log_file: Path, output: str) -> None:
+        self.c_file, self.log_file, self.output = c_file, log_file, output
+        lines = output.strip().splitlines() or ["(the C compiler printed nothing)"]
+        shown = lines[:MAX_CC_LINES] + ([f"... ({len(lines) - MAX_CC_LINES} more lines)"]
+                                        if len(lines) > MAX_CC_LINES else [])
+        super().__init__("internal compiler error: the C compiler rejected the C generated for the program:\n  "
+                         + "\n  ".join(shown) + f"\nthe generated C is kept in {c_file}, "
+                         f"the C compiler's output in {log_file}")
+
+
+MAX_CC_LINES = 30      # of the C compiler's output in the message (the log file has all of it)
+
+
+def run_c_compiler(cmd: list[str], c_file: Path) -> None:
+    """Run `cmd`, a C compiler given the generated `c_file`; its failure is a GeneratedCError, its output then
+    kept beside the C file (`program.c` -> `program.cc.log`)."""
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        msg = proc.stderr.strip().splitlines()
-        raise UserError("C compiler failed (this is a bug in plc if the ST checked clean):\n  " +
-                        "\n  ".join(msg[:30]))
+        log = c_file.with_suffix(".cc.log")
+        log.write_text(f"$ {shlex.join(cmd)}\n{proc.stdout}{proc.stderr}")
+        raise GeneratedCError(c_file, log, proc.stderr + proc.stdout)
+
+
+def compile_c(c_file: Path, out: Path) -> None:
+    """The object file `out` of the generated `c_file` (plc build)."""
+    run_c_compiler([cc(), *CFLAGS, f"-I{INCLUDE}", "-c", str(c_file), "-o", str(out)], c_file)
 
 
 def content_hash(*parts: str | bytes) -> str:
