@@ -218,6 +218,26 @@ def test_c_that_the_c_compiler_rejects_is_an_internal_error_exit_3_keeping_the_c
     assert not (out / "program.o").exists()
 
 
+def test_the_c_generator_writes_the_unit_in_its_final_order():
+    """The C of a build is the generator's buffer as written, nothing edited afterwards: the assertion hook of a
+    test build right after the include, every file-scope definition `static PLC_UNUSED` (or `static inline`),
+    the site table last, once every site is numbered."""
+    from plc.codegen import Gen
+    src = GOOD.replace("go : BOOL;", "go : BOOL;\n    a : ARRAY[0..3] OF INT;").replace("n := ABS(n);",
+                                                                                      "n := ABS(n);\na[n] := 1;")
+    unit = compile_st(src, name="t.st", test_build=True).c_text
+    res = compile_st(src, name="t.st", generate=False, test_build=True)
+    gen = Gen(res.program, test_build=True)
+    assert gen.generate() == unit == "\n".join(gen.out) + "\n"
+    lines = unit.splitlines()
+    assert lines[lines.index('#include "plc_rt.h"') + 1].startswith("static inline uint8_t plc_assert_done(")
+    assert [ln for ln in lines if ln.startswith("static ")
+            and not ln.startswith(("static inline ", "static PLC_UNUSED "))] == []
+    sites = res.program.sites
+    assert any(s.pos.file == "t.st" for s in sites)            # a[n]: an index the C checks at run time
+    assert lines[-1] == f"const uint32_t plc_n_sites = {len(sites)}u;"
+
+
 def test_plc_help_names_the_exit_codes(capsys):
     from plc import cli
     help_text = " ".join(cli.parser().format_help().split())

@@ -7,15 +7,14 @@ table; every variable is listed in a table for debugging, HMI and RETAIN.  The
 unit talks to its host only through plc_abi.h.
 
 `Gen` joins the parts of plc/src/plc/cgen (one concern each); `generate` lays the
-unit out.  A node kind the generator has no method for is an InternalError at
-its position, never silent C.
+unit out, in its final order: nothing is edited after it is written.  A node
+kind the generator has no method for is an InternalError at its position, never
+silent C.
 """
 from __future__ import annotations
 
-import re
-
 from . import types as T
-from .cgen.base import GenBase, cid
+from .cgen.base import STATIC, GenBase, cid
 from .cgen.calls import CallGen
 from .cgen.config import ConfigGen
 from .cgen.declarations import DeclarationGen
@@ -36,6 +35,11 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
         w("#include <setjmp.h>")
         w("#include <stddef.h>")
         w('#include "plc_rt.h"')
+        if self.test_build:
+            w("static inline uint8_t plc_assert_done(uint8_t ok, int32_t site, const void *ctx) {")
+            w("    plc_on_assert(site, ok, ctx);")
+            w("    return ok;")
+            w("}")
         w("/* ST may compare a variable with a bound of its own type (i < -32768, u >= 0): legal, not a bug. */")
         w("#if defined(__clang__)")
         w('#pragma clang diagnostic ignored "-Wtautological-constant-out-of-range-compare"')
@@ -43,9 +47,9 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
         w('#pragma GCC diagnostic ignored "-Wtype-limits"')
         w("#endif")
         w()
-        w("static int64_t plc_clock;")
-        w("static plc_fault_t plc_fault_rec;")
-        w("static jmp_buf *plc_jmp_active;")
+        w(f"{STATIC} int64_t plc_clock;")
+        w(f"{STATIC} plc_fault_t plc_fault_rec;")
+        w(f"{STATIC} jmp_buf *plc_jmp_active;")
         w()
         aggs = self.aggregates()
         for t in aggs:
@@ -69,10 +73,10 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
         # prototypes
         for t in aggs:
             if isinstance(t, (T.ArrayType, T.StructType)):
-                w(f"static void init_{self.ctype(t)}({self.ctype(t)} *p);")
+                w(f"{STATIC} void init_{self.ctype(t)}({self.ctype(t)} *p);")
         for pt in self.p.pous.values():
-            w(f"static void P_{pt.name}_init(P_{pt.name} *self);")
-            w(f"static void P_{pt.name}_body(P_{pt.name} *self);")
+            w(f"{STATIC} void P_{pt.name}_init(P_{pt.name} *self);")
+            w(f"{STATIC} void P_{pt.name}_body(P_{pt.name} *self);")
         for fs in self.p.funcs.values():
             w(self.func_proto(fs) + ";")
         w()
@@ -80,7 +84,9 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
         w()
         self.site_table()
         w()
-        w("static void plc_raise(int kind, int32_t site) {")
+        self.minmax_helpers()
+        w()
+        w(f"{STATIC} void plc_raise(int kind, int32_t site) {{")
         w("    plc_fault_rec.kind = kind;")
         w("    if (site >= 0 && (uint32_t)site < plc_n_sites) {")
         w("        plc_fault_rec.pou = plc_sites[site].pou;")
@@ -102,20 +108,9 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
         self.config()
         if self.test_build:
             self.tests()
+        self.emit_sites()           # last: generating the bodies numbered the sites (declared at the top)
         return "\n".join(self.out) + "\n"
 
 
 def generate(prog: Program, test_build: bool = False) -> str:
-    g = Gen(prog, test_build)
-    text = g.generate()
-    # the site table is complete only now
-    g.out = []
-    g.emit_sites()
-    sites = "\n".join(g.out) + "\n"
-    if test_build:
-        hook = ("static inline uint8_t plc_assert_done(uint8_t ok, int32_t site, const void *ctx) {\n"
-                "    plc_on_assert(site, ok, ctx);\n    return ok;\n}\n")
-        text = text.replace('#include "plc_rt.h"\n', '#include "plc_rt.h"\n' + hook, 1)
-    # generated functions and tables are static; not every program uses every one
-    text = re.sub(r"^static (?!inline)", "static PLC_UNUSED ", text, flags=re.M)
-    return text + sites
+    return Gen(prog, test_build).generate()

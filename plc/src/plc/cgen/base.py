@@ -14,6 +14,11 @@ C_RESERVED = re.compile(r"^(NULL|NAN|INFINITY|HUGE_VAL[FL]?|EOF|BUFSIZ|FILENAME_
                         r"SIG_ATOMIC_(MAX|MIN)|PLC_.*|_IO.*|E[A-Z0-9]+)$")
 
 
+# How every generated function, variable and table is declared: file-local, and maybe unused (not every program
+# uses every helper, and gcc's -Wunused under -Werror must not stop the build).  Inline helpers are "static inline".
+STATIC = "static PLC_UNUSED"
+
+
 def cid(name: str) -> str:
     """C spelling of an (upper-case) ST identifier."""
     return name + "_V" if C_RESERVED.match(name) else name

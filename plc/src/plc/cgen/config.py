@@ -5,7 +5,7 @@ from __future__ import annotations
 import zlib
 
 from .. import types as T
-from .base import GenBase, cid, c_string
+from .base import STATIC, GenBase, cid, c_string
 
 
 class ConfigGen(GenBase):
@@ -13,12 +13,10 @@ class ConfigGen(GenBase):
     def config(self) -> None:
         w = self.w
         cfg = self.cfg
-        # min/max helpers used by MIN/MAX/LIMIT
-        self.out.insert(self.helpers_at(), self.minmax_helpers())
         singles = [t for t in cfg.tasks if t.single is not None] if cfg is not None else []
         for k, _t in enumerate(singles):      # SINGLE tasks: an R_TRIG on their BOOL global
-            w(f"static uint8_t plc_single_prev_{k}, plc_single_fire_{k};")
-        w("static void plc_init(void) {")
+            w(f"{STATIC} uint8_t plc_single_prev_{k}, plc_single_fire_{k};")
+        w(f"{STATIC} void plc_init(void) {{")
         self.ind += 1
         for k, _t in enumerate(singles):
             w(f"plc_single_prev_{k} = 0;")
@@ -40,7 +38,7 @@ class ConfigGen(GenBase):
         self.ind -= 1
         w("}")
         w()
-        w("static int plc_run(uint64_t tick) {")
+        w(f"{STATIC} int plc_run(uint64_t tick) {{")
         self.ind += 1
         w("jmp_buf jb;")
         w("if (plc_fault_rec.kind != PLC_FAULT_NONE) return plc_fault_rec.kind;")
@@ -74,20 +72,13 @@ class ConfigGen(GenBase):
         w()
         self.tables()
 
-    def helpers_at(self) -> int:
-        for i, line in enumerate(self.out):
-            if line.startswith("static void plc_raise(int kind"):
-                return i
-        return len(self.out)
-
-    def minmax_helpers(self) -> str:
-        lines = []
+    def minmax_helpers(self) -> None:
+        """The helpers of MIN, MAX and LIMIT, one pair per C type."""
         for suf, ct in (("i8", "int8_t"), ("i16", "int16_t"), ("i32", "int32_t"), ("i64", "int64_t"),
                         ("u8", "uint8_t"), ("u16", "uint16_t"), ("u32", "uint32_t"), ("u64", "uint64_t"),
                         ("f32", "float"), ("f64", "double")):
-            lines.append(f"static inline {ct} plc_min_{suf}({ct} a, {ct} b) {{ return a < b ? a : b; }}")
-            lines.append(f"static inline {ct} plc_max_{suf}({ct} a, {ct} b) {{ return a > b ? a : b; }}")
-        return "\n".join(lines) + "\n"
+            self.w(f"static inline {ct} plc_min_{suf}({ct} a, {ct} b) {{ return a < b ? a : b; }}")
+            self.w(f"static inline {ct} plc_max_{suf}({ct} a, {ct} b) {{ return a > b ? a : b; }}")
 
     def var_entries(self):
         """(path, type, retain, constant, c-address, c-type) of every variable, FB instances flattened."""
@@ -140,13 +131,13 @@ class ConfigGen(GenBase):
         cfg = self.cfg
         tasks = cfg.tasks if cfg is not None else []
         if tasks:
-            w("static const plc_task_t plc_task_table[] = {")
+            w(f"{STATIC} const plc_task_t plc_task_table[] = {{")
             for t in tasks:
                 w(f"    {{{c_string(t.name)}, {t.interval_ns}u, {t.every}u, {t.priority}}},")
             w("};")
         located = self.located_entries()
         if located:
-            w("static const plc_located_t plc_located_table[] = {")
+            w(f"{STATIC} const plc_located_t plc_located_table[] = {{")
             for loc, path, t, ptr, retain in located:
                 index = loc.parts[0]
                 bit = loc.parts[1] if loc.size == "X" and len(loc.parts) > 1 else 0
@@ -155,7 +146,7 @@ class ConfigGen(GenBase):
             w("};")
         entries = self.var_entries()
         if entries:
-            w("static const plc_var_t plc_var_table[] = {")
+            w(f"{STATIC} const plc_var_t plc_var_table[] = {{")
             for path, abi, retain, const, addr, ct, sig in entries:
                 w(f"    {{{c_string(path)}, {abi}, {retain}, {const}, (void *){addr}, (uint32_t)sizeof({ct}), "
                   f"{c_string(sig)}}},")
@@ -198,8 +189,8 @@ class ConfigGen(GenBase):
                 continue
             self.test_list.append(pt)
             f = cid(ctx.name)
-            w(f"static void T_{pt.name}_init(void *self) {{ P_{pt.name}_init((P_{pt.name} *)self); }}")
-            w(f"static int T_{pt.name}_body(void *self, void *ctx) {{")
+            w(f"{STATIC} void T_{pt.name}_init(void *self) {{ P_{pt.name}_init((P_{pt.name} *)self); }}")
+            w(f"{STATIC} int T_{pt.name}_body(void *self, void *ctx) {{")
             w(f"    P_{pt.name} *s = (P_{pt.name} *)self;")
             w("    jmp_buf jb;")
             w("    plc_jmp_active = &jb;")

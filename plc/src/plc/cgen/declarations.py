@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .. import types as T
 from ..symbols import FuncSym
-from .base import GenBase, cid
+from .base import STATIC, GenBase, cid
 
 
 class DeclarationGen(GenBase):
@@ -32,7 +32,7 @@ class DeclarationGen(GenBase):
             else:
                 params.append(f"{ct} *{cid(v.name)}")
         params.append("uint8_t *ENO__")        # the implicit ENO output, which the body may clear
-        return f"static {self.ctype(fs.ret)} U_{fs.name}({', '.join(params)})"
+        return f"{STATIC} {self.ctype(fs.ret)} U_{fs.name}({', '.join(params)})"
 
     # --------------------------------------------------------------- globals --
     def globals_decl(self) -> None:
@@ -44,18 +44,18 @@ class DeclarationGen(GenBase):
                 for v in (pt.scope.vars.values() if pt.scope is not None else []):
                     if v.section == "VAR_EXTERNAL" and v.global_sym is None and v.name not in seen:
                         seen.add(v.name)
-                        self.w(f"static {self.ctype(v.type)} G_{cid(v.name)};")
+                        self.w(f"{STATIC} {self.ctype(v.type)} G_{cid(v.name)};")
             return
         for g in self.cfg.globals.values():
             ct = self.ctype(g.type)
             if g.location is not None:
-                self.w(f"static {ct} *G_{cid(g.name)};")
-                self.w(f"static {ct} G_{cid(g.name)}__L;")
+                self.w(f"{STATIC} {ct} *G_{cid(g.name)};")
+                self.w(f"{STATIC} {ct} G_{cid(g.name)}__L;")
             else:
-                self.w(f"static {ct} G_{cid(g.name)};")
+                self.w(f"{STATIC} {ct} G_{cid(g.name)};")
         for inst in self.cfg.instances:
             inst.cname = f"I_{inst.resource}_{inst.name}" if inst.resource else f"I_{inst.name}"
-            self.w(f"static P_{inst.type.name} {inst.cname};")
+            self.w(f"{STATIC} P_{inst.type.name} {inst.cname};")
 
     def site_table(self) -> None:
         # sites are numbered during generation; emit a forward declaration now, the table at the end

@@ -6,7 +6,7 @@ from .. import ast as A
 from .. import types as T
 from ..diagnostics import InternalError
 from ..symbols import FuncSym, VarSym
-from .base import GenBase, cid
+from .base import STATIC, GenBase, cid
 
 
 class StatementGen(GenBase):
@@ -15,7 +15,7 @@ class StatementGen(GenBase):
         self.pou = pt.pou
         self.fn = None
         self.scope = pt.scope
-        self.w(f"static void P_{pt.name}_body(P_{pt.name} *self) {{")
+        self.w(f"{STATIC} void P_{pt.name}_body(P_{pt.name} *self) {{")
         self.ind += 1
         self.w("(void)self;                 /* a body may use only globals, or be empty */")
         for v in pt.scope.vars.values():
