@@ -5,17 +5,25 @@ language is case-insensitive) with the original spelling kept where messages
 need it.
 
 Two kinds of fields, as MATIEC's symbol_c has them:
-- syntax fields, set by the parser; the child nodes among them are what
-  `iter_child_nodes` and the visitors walk;
+- syntax fields, set by the parser and never written after it; the child nodes
+  among them are what `iter_child_nodes`, `walk` and `NodeVisitor` walk.  The
+  one exception: the PLCopen front end moves the positions (`Pos` fields) of a
+  project's translated ST into its XML once the checks are done
+  (plcopen.Translation.remap_tree), so that the C reports XML lines;
 - annotations, declared with `annotation()`: None until the semantic passes
   fill them (`ty` the resolved type of an expression, `sym` what a name
   resolves to, `target` a call's callee, `param` the parameter an argument
-  binds, ...).  They are not in the constructor and never walked.
+  binds, ...: the symbols of symbols.py).  They are not in the constructor and
+  never walked.
 
-`NodeVisitor` / `NodeTransformer` walk the declared child fields (pycparser's
-and CPython's `ast` pattern); `StrictVisitor` is for passes that must handle
-every node kind they meet: any other kind is an `InternalError` at the node's
-position, never silently skipped.
+Each pass dispatches on the node kind with `handler(pass, prefix, node, ...)`:
+the pass's method `<prefix><Kind>`, one prefix per family of nodes it takes
+(`d_` a file's items, `s_` statements, `t_` expression typing, `x_` C
+expressions), each family's methods with the arguments its context needs.  A
+kind without its method is an `InternalError` at the node's position, never
+silently skipped (MATIEC stops with ERROR there).  `NodeVisitor` is the
+generic walk over the declared children (pycparser's and CPython's `ast`
+pattern) for tools and tests that look at a whole tree; no pass is one.
 """
 from __future__ import annotations
 
@@ -24,11 +32,18 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Optional
 
 from .diagnostics import InternalError, Pos
+from .types import Type
 
 
 def annotation(doc: str) -> Any:
     """A field a semantic pass fills in (None until then): out of the constructor, never walked."""
     return field(default=None, init=False, repr=False, compare=False, metadata={"annotation": doc})
+
+
+class Symbol:
+    """What a name or a call resolves to: the base of the symbols of symbols.py (VarSym, FuncSym, EnumValueSym,
+    BuiltinSym, ConversionSym) and of stdfuncs.StdFunc, which build on this module."""
+    __slots__ = ()
 
 
 @dataclass(eq=False)
@@ -104,9 +119,9 @@ Init = Any  # Expr | ArrayInit | StructInit
 # ------------------------------------------------------------------ expressions --
 @dataclass(eq=False)
 class Expr(Node):
-    ty: Any = annotation("types.Type of the value (sema: bodies/expressions)")
-    sym: Any = annotation("what a Name / EnumLit / Member resolves to: VarSym, FuncSym, (EnumType, value), "
-                          "'CURRENT_TIME', 'EN', 'ENO' (sema: expressions)")
+    ty: Type | None = annotation("types.Type of the value (sema: bodies/expressions)")
+    sym: Symbol | None = annotation("what a Name / EnumLit / Member resolves to: a VarSym, FuncSym, EnumValueSym "
+                                    "or BuiltinSym of symbols.py (sema: expressions)")
 
 
 @dataclass(eq=False)
@@ -137,9 +152,9 @@ class StrLit(Expr):
 
 @dataclass(eq=False)
 class TimeLit(Expr):
-    kind: str          # TIME TOD DATE DT LTIME ...
+    kind: str                     # TIME TOD DATE DT LTIME ...
     text: str
-    value: int = 0     # nanoseconds (since epoch for DATE/DT)
+    value: Optional[int] = None   # nanoseconds (since epoch for DATE/DT); None: not a valid literal of its kind
 
 
 @dataclass(eq=False)
@@ -207,7 +222,8 @@ class Arg(Node):
     output: bool = False     # `name => target`
     negated: bool = False    # `NOT name => target`
     text: str = ""
-    param: Any = annotation("the callee's VarSym this argument binds (sema: calls)")
+    param: Symbol | None = annotation("the callee's parameter this argument binds, by name or by position: a "
+                                      "VarSym (sema: calls)")
 
 
 @dataclass(eq=False)
@@ -215,13 +231,13 @@ class Call(Expr):
     func: str
     args: list[Arg]
     text: str = ""
-    target: Any = annotation("the callee: FuncSym, StdFunc, FB instance VarSym or ('CONV', src, dst) "
-                             "(sema: calls)")
+    target: Symbol | None = annotation("the callee: a FuncSym, StdFunc, ConversionSym or the FB instance's "
+                                       "VarSym (sema: calls)")
     site: int = field(default=-1, init=False, repr=False, compare=False,
                       metadata={"annotation": "assertion call site id, -1 if none (sema: test builds)"})
-    std_args: list = field(default_factory=list, init=False, repr=False, compare=False,
-                           metadata={"annotation": "a standard function's input values in parameter order "
-                                                   "(stdfuncs)"})
+    std_args: list[Expr] = field(default_factory=list, init=False, repr=False, compare=False,
+                                 metadata={"annotation": "a standard function's or a conversion's input values "
+                                                         "in parameter order (stdfuncs, sema: calls)"})
     time_arith: bool = field(default=False, init=False, repr=False, compare=False,
                              metadata={"annotation": "ADD/SUB/MUL/DIV on TIME operands (stdfuncs)"})
 
@@ -456,40 +472,3 @@ class NodeVisitor:
         for child in iter_child_nodes(node):
             self.visit(child)
         return None
-
-
-class StrictVisitor(NodeVisitor):
-    """A visitor that must know every node kind it is given: an unknown kind is an internal compiler error
-    with the node's position (MATIEC stops with ERROR there), never silently ignored."""
-
-    def visit(self, node: Node) -> Any:
-        return handler(self, "visit_", node, type(self).__name__)(node)
-
-
-class NodeTransformer(NodeVisitor):
-    """A visitor whose `visit_<Kind>` returns the node that replaces the one visited (None drops it from a
-    list); `generic_visit` rebuilds the children in place."""
-
-    def generic_visit(self, node: Node) -> Any:
-        for name, value in child_fields(node):
-            if isinstance(value, Node):
-                setattr(node, name, self.visit(value))
-            elif isinstance(value, list):
-                setattr(node, name, self._list(value))
-        return node
-
-    def _list(self, items: list) -> list:
-        out = []
-        for item in items:
-            if isinstance(item, Node):
-                new = self.visit(item)
-                if new is not None:
-                    out.append(new)
-            elif isinstance(item, tuple):
-                out.append(tuple(self.visit(x) if isinstance(x, Node) else
-                                 self._list(x) if isinstance(x, list) else x for x in item))
-            elif isinstance(item, list):
-                out.append(self._list(item))
-            else:
-                out.append(item)
-        return out

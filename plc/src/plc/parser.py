@@ -15,6 +15,7 @@ from . import ast as A
 from .diagnostics import Diagnostics, Pos
 from .facts import Fact, fact
 from .lexer import Token, tokenize
+from .timelit import decode
 
 MAX_DEPTH = 120
 
@@ -722,7 +723,7 @@ class Parser:
         if k == "TIME":
             self.next()
             kind, text = t.value
-            return A.TimeLit(t.pos, kind, text)
+            return A.TimeLit(t.pos, kind, text, decode(kind, text))
         if k == "TYPEPFX":
             return self.typed_literal()
         if k == "DIRECT":

@@ -53,7 +53,7 @@ Emitter = Callable[..., str]
 
 
 @dataclass
-class StdFunc:
+class StdFunc(A.Symbol):
     name: str
     kind: str                  # see check()
     params: tuple[str, ...] = ()

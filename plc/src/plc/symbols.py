@@ -1,4 +1,10 @@
-"""What names resolve to: variables, POUs, and the scopes that hold them."""
+"""What names and calls resolve to (the `sym` and `target` annotations of ast.py), and the scopes that hold
+variables.
+
+A name resolves to a VarSym (a variable), a FuncSym (inside a FUNCTION, its result), an EnumValueSym (an
+enumeration value) or a BuiltinSym (EN, ENO, CURRENT_TIME); a call to a FuncSym, a stdfuncs.StdFunc, a
+ConversionSym or, for a function block call, the instance's VarSym.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -6,11 +12,11 @@ from typing import Optional
 
 from . import ast as A
 from .diagnostics import Pos
-from .types import Type
+from .types import EnumType, Type
 
 
 @dataclass(eq=False)
-class VarSym:
+class VarSym(A.Symbol):
     name: str
     text: str
     type: Type
@@ -45,7 +51,7 @@ class Scope:
 
 
 @dataclass(eq=False)
-class FuncSym:
+class FuncSym(A.Symbol):
     name: str
     text: str
     pou: A.Pou
@@ -53,3 +59,33 @@ class FuncSym:
     scope: Scope
     builtin: bool = False
     cname: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class EnumValueSym(A.Symbol):
+    """An enumeration value (`Idle`, `E_Mode#Idle`): its enumeration and the value, upper case."""
+    type: EnumType
+    value: str
+
+    @property
+    def index(self) -> int:
+        """The value's number in the C code: its place in the enumeration's declaration."""
+        return self.type.values.index(self.value)
+
+
+@dataclass(frozen=True, eq=False)
+class BuiltinSym(A.Symbol):
+    """A name a POU has without declaring it: one of EN, ENO, CURRENT_TIME below (compared by identity)."""
+    name: str
+
+
+EN = BuiltinSym("EN")                        # the POU's enable input (TRUE inside a FUNCTION)
+ENO = BuiltinSym("ENO")                      # the POU's enable output
+CURRENT_TIME = BuiltinSym("CURRENT_TIME")    # the PLC clock, for the built-in library only
+
+
+@dataclass(frozen=True, eq=False)
+class ConversionSym(A.Symbol):
+    """The callee of a type conversion (INT_TO_DINT(x), TO_DINT(x)): from the input's type to `dst`."""
+    src: Type
+    dst: Type

@@ -6,7 +6,7 @@ from .. import ast as A
 from .. import types as T
 from ..diagnostics import InternalError
 from ..stdfuncs import StdFunc
-from ..symbols import FuncSym
+from ..symbols import ConversionSym, FuncSym
 from .base import GenBase
 
 
@@ -17,8 +17,8 @@ class CallGen(GenBase):
         eno = next((a for a in c.args if a.name == "ENO" and a.output and a.value is not None), None)
         if isinstance(tgt, FuncSym):
             expr = self.user_call(c, tgt, f"&{self.lv(eno.value)}" if eno is not None else "&(uint8_t){1}")
-        elif isinstance(tgt, tuple) and tgt[0] == "CONV":
-            expr = self.conversion(c, tgt[1], tgt[2])
+        elif isinstance(tgt, ConversionSym):
+            expr = self.conversion(c, tgt.src, tgt.dst)
         elif isinstance(tgt, StdFunc):
             expr = self.std_call(c, tgt)
         else:
@@ -38,10 +38,10 @@ class CallGen(GenBase):
         return expr
 
     def user_call(self, c: A.Call, fs: FuncSym, eno_ptr: str) -> str:
-        by_name = {a.name: a for a in c.args if a.name not in (None, "EN", "ENO")}
+        by_param = {a.param.name: a for a in c.args if a.param is not None}    # formal or positional
         args = []
         for p in fs.scope.params():
-            a = by_name.get(p.name)
+            a = by_param.get(p.name)
             ct = self.ctype(p.type)
             if p.section == "VAR_INPUT":
                 if a is None or a.value is None:
@@ -60,7 +60,7 @@ class CallGen(GenBase):
         return f"U_{fs.name}({', '.join(args)})"
 
     def conversion(self, c: A.Call, src: T.Type, dst: T.Type) -> str:
-        arg = c.args[0].value
+        arg = c.std_args[0]
         x = self.ex(arg)
         s, d = T.resolve_base(src), T.resolve_base(dst)
         if isinstance(T.resolve_base(arg.ty), T.Elementary):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from .. import ast as A
 from .. import types as T
 from ..diagnostics import InternalError
-from ..symbols import FuncSym, VarSym
+from ..symbols import CURRENT_TIME, EN, ENO, EnumValueSym, FuncSym, VarSym
 from .base import GenBase, cid, c_string, c_compare
 
 
@@ -73,21 +73,19 @@ class ExpressionGen(GenBase):
         return f"((int64_t){e.value}LL)"
 
     def x_EnumLit(self, e: A.EnumLit) -> str:
-        et = e.ty
-        if not isinstance(et, T.EnumType):
+        if not isinstance(e.sym, EnumValueSym):
             raise InternalError(e.pos, f"enumerated value {e.type_name}#{e.value} reached the C generator untyped")
-        return str(et.values.index(e.value))
+        return str(e.sym.index)
 
     def x_Name(self, e: A.Name) -> str:
         sym = e.sym
-        if isinstance(sym, tuple):
-            et, v = sym
-            return str(et.values.index(v))
-        if sym == "CURRENT_TIME":
+        if isinstance(sym, EnumValueSym):
+            return str(sym.index)
+        if sym is CURRENT_TIME:
             return "plc_clock"
-        if sym == "ENO":
+        if sym is ENO:
             return "(*ENO__)" if self.fn is not None else "self->ENO"
-        if sym == "EN":
+        if sym is EN:
             return "((uint8_t)1)" if self.fn is not None else "self->EN"
         if isinstance(sym, FuncSym):
             return "RESULT__"

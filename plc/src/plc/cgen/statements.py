@@ -5,7 +5,7 @@ from __future__ import annotations
 from .. import ast as A
 from .. import types as T
 from ..diagnostics import InternalError
-from ..symbols import FuncSym, VarSym
+from ..symbols import EnumValueSym, FuncSym, VarSym
 from .base import STATIC, GenBase, cid
 
 
@@ -149,13 +149,8 @@ class StatementGen(GenBase):
         self.w("}")
 
     def label_value(self, e: A.Expr) -> str:
-        sym = e.sym
-        if isinstance(sym, tuple):
-            et, v = sym
-            return str(et.values.index(v))
-        if isinstance(e, A.EnumLit):
-            et = e.ty
-            return str(et.values.index(e.value))
+        if isinstance(e.sym, EnumValueSym):
+            return str(e.sym.index)
         return f"INT64_C({self.const_int(e)})"
 
     def const_int(self, e: A.Expr) -> int:

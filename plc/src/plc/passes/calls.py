@@ -7,7 +7,7 @@ from .. import ast as A
 from .. import types as T
 from ..diagnostics import Pos
 from ..stdfuncs import STD_FUNCS, conversion
-from ..symbols import FuncSym, Scope
+from ..symbols import ConversionSym, FuncSym, Scope
 from .context import Pass
 
 
@@ -55,7 +55,8 @@ class CallTyping(Pass):
         self.bind_args(c, fs.scope, fs.text, fs.text, is_fb=False)
 
     def bind_args(self, c: A.Call, callee: Scope, callee_name: str, call_name: str, is_fb: bool) -> None:
-        """Match a call's arguments to the callee's parameters and check each (FB instances and FUNCTIONs)."""
+        """Match a call's arguments to the callee's parameters and check each (FB instances and FUNCTIONs); the
+        parameter an argument binds, by name or by position, is its `param`."""
         params = callee.params()
         positional = [a for a in c.args if a.name is None]
         formal = [a for a in c.args if a.name is not None]
@@ -63,33 +64,33 @@ class CallTyping(Pass):
             self.err(c.pos, f"call of {c.text} mixes positional and formal (name :=) arguments")
             if is_fb:
                 return
+        ins = [p for p in params if p.section in ("VAR_INPUT", "VAR_IN_OUT")]
         if positional:
-            ins = [p for p in params if p.section in ("VAR_INPUT", "VAR_IN_OUT")]
             if len(positional) > len(ins):
                 self.err(positional[len(ins)].pos, f"too many arguments for {callee_name} (it has {len(ins)} inputs)")
-            for a, p in zip(positional, ins):
-                a.name = p.name
             if not is_fb and len(positional) < len(ins) and not formal:
                 missing = [p.text for p in ins[len(positional):]]
                 self.err(c.pos, f"call of {callee_name} is missing {', '.join(missing)}",
                          "a positional call must give every input")
+        by_position = iter(p.name for p in ins)
         seen = set()
         for a in c.args:
-            if a.name is None:          # a positional argument past the inputs: reported above
+            name = a.name if a.name is not None else next(by_position, None)
+            if name is None:            # a positional argument past the inputs: reported above
                 if not is_fb and a.value is not None:
                     self.expr_typing.expr(a.value, self.st.scope, None)
                 continue
-            if a.name in seen:
-                self.err(a.pos, f"parameter '{a.text or a.name}' given twice")
+            if name in seen:
+                self.err(a.pos, f"parameter '{a.text or name}' given twice")
                 continue
-            seen.add(a.name)
-            if a.name in ("EN", "ENO"):
+            seen.add(name)
+            if name in ("EN", "ENO"):
                 self.en_eno_arg(a)
                 continue
-            p = callee.lookup(a.name)
+            p = callee.lookup(name)
             if p is None or p.section not in ("VAR_INPUT", "VAR_OUTPUT", "VAR_IN_OUT"):
-                self.err(a.pos, f"{callee_name} has no parameter '{a.text or a.name}'",
-                         self.type_pass.suggest(a.name, [q.name for q in params]))
+                self.err(a.pos, f"{callee_name} has no parameter '{a.text or name}'",
+                         self.type_pass.suggest(name, [q.name for q in params]))
                 continue
             a.param = p
             if p.section == "VAR_OUTPUT":
@@ -138,19 +139,19 @@ class CallTyping(Pass):
 
     def conversion_call(self, c: A.Call, conv, scope) -> T.Type:
         src, dst, generic = conv
-        c.target = ("CONV", src, dst)
+        c.target = ConversionSym(src, dst)
         for a in c.args:
             if a.name in ("EN", "ENO"):
                 self.en_eno_arg(a)
-        c.args = [a for a in c.args if a.name not in ("EN", "ENO")] + \
-            [a for a in c.args if a.name in ("EN", "ENO")]
-        if len([a for a in c.args if a.name not in ("EN", "ENO")]) != 1 or c.args[0].output:
+        inputs = [a for a in c.args if a.name not in ("EN", "ENO")]
+        if len(inputs) != 1 or inputs[0].output:
             self.err(c.pos, f"{c.text} takes exactly one input")
-            for a in c.args:
+            for a in inputs:
                 if a.value is not None and not a.output:
                     self.expr_typing.expr(a.value, scope, None)
             return dst
-        a = c.args[0]
+        a = inputs[0]
+        c.std_args = [a.value]
         if a.name not in (None, "IN"):
             self.err(a.pos, f"{c.text} has no parameter '{a.text}'", "its input is IN")
         if generic:
@@ -163,7 +164,7 @@ class CallTyping(Pass):
             if isinstance(ab, T.LiteralType):
                 self.expr_typing.fix_literal(a.value, T.LINT if ab.cat == "int" else T.LREAL)
                 ab = T.resolve_base(a.value.ty)
-            c.target = ("CONV", ab, dst)
+            c.target = ConversionSym(ab, dst)
         elif not T.same_type(ab, src) and not isinstance(ab, T.LiteralType):
             self.err(a.pos, f"{c.text} needs a {src.name} input, not {at}",
                      f"use {T.resolve_base(at).name}_TO_{dst.name}" if isinstance(ab, T.Elementary) else None)

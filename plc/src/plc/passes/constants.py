@@ -7,7 +7,6 @@ import math
 
 from .. import ast as A
 from ..symbols import VarSym
-from ..timelit import decode
 from .context import Pass
 
 
@@ -24,7 +23,7 @@ class ConstantEval(Pass):
         if isinstance(e, A.BoolLit):
             return e.value
         if isinstance(e, A.TimeLit):
-            return decode(e.kind, e.text)
+            return e.value
         if isinstance(e, A.Name):
             sym = e.sym or self.lookup_const(e.name)
             if isinstance(sym, VarSym) and sym.constant and sym.const_value is not None:

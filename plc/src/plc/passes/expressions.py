@@ -5,8 +5,7 @@ from __future__ import annotations
 
 from .. import ast as A
 from .. import types as T
-from ..symbols import Scope
-from ..timelit import decode
+from ..symbols import CURRENT_TIME, EN, ENO, EnumValueSym, Scope
 from .context import Pass, TIME_KIND_TYPE
 
 
@@ -86,13 +85,11 @@ class ExpressionTyping(Pass):
         if e.kind not in TIME_KIND_TYPE:
             self.err(e.pos, f"{e.kind} literals are not supported by MATIEC")
             return T.ERROR
-        v = decode(e.kind, e.text)
-        if v is None:
+        if e.value is None:          # the parser decoded the text (timelit.decode)
             self.err(e.pos, f"invalid {e.kind} literal '{e.text}'",
                      {"TIME": "e.g. T#1s500ms, T#2.5s, T#-5s", "TOD": "e.g. TOD#12:30:00",
                       "DATE": "e.g. D#2024-01-31", "DT": "e.g. DT#2024-01-31-12:30:00"}[e.kind])
             return T.ERROR
-        e.value = v
         low = e.text.lower()
         if e.kind == "TIME" and ("us" in low or "ns" in low):
             self.port(e.pos, "time-unit")
@@ -176,7 +173,7 @@ class ExpressionTyping(Pass):
             self.err(e.pos, f"'{e.value}' is not a value of {t.name}",
                      f"values: {', '.join(t.values)}")
             return T.ERROR
-        e.sym = (t, e.value)
+        e.sym = EnumValueSym(t, e.value)
         return t
 
     def name(self, e: A.Name, scope: Scope | None, expected: T.Type | None) -> T.Type:
@@ -185,10 +182,10 @@ class ExpressionTyping(Pass):
             e.sym = self.st.func
             return self.st.func.ret
         if sym is None and e.name == "CURRENT_TIME" and self.in_builtin():
-            e.sym = "CURRENT_TIME"
+            e.sym = CURRENT_TIME
             return T.TIME
         if sym is None and e.name in ("EN", "ENO") and self.st.current_pou is not None:
-            e.sym = e.name          # the POU's implicit EN input / ENO output
+            e.sym = EN if e.name == "EN" else ENO       # the POU's implicit EN input / ENO output
             return T.BOOL
         if sym is not None:
             e.sym = sym
@@ -205,7 +202,7 @@ class ExpressionTyping(Pass):
                 self.err(e.pos, f"enumeration value '{e.text}' is ambiguous ({', '.join(x.name for x in enums)})",
                          f"qualify it: {enums[0].name}#{e.text}")
                 return T.ERROR
-            e.sym = (et, e.name)
+            e.sym = EnumValueSym(et, e.name)
             return et
         if e.name in self.st.pou_decls:
             self.err(e.pos, f"'{e.text}' is a POU, not a variable")

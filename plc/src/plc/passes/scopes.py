@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .. import ast as A
 from .. import types as T
-from ..symbols import FuncSym, Scope, VarSym
+from ..symbols import EnumValueSym, FuncSym, Scope, VarSym
 from .context import Pass, LOCATION_SIZES, LOCATED_OK
 
 
@@ -211,7 +211,7 @@ class ScopePass(Pass):
         if isinstance(e, (A.IntLit, A.RealLit, A.BoolLit, A.StrLit, A.TimeLit, A.EnumLit)):
             return True
         if isinstance(e, A.Name):
-            return isinstance(e.sym, tuple) or (isinstance(e.sym, VarSym) and e.sym.constant)
+            return isinstance(e.sym, EnumValueSym) or (isinstance(e.sym, VarSym) and e.sym.constant)
         if isinstance(e, A.Unary):
             return self.is_constant_expr(e.operand)
         if isinstance(e, A.Binary):

@@ -6,7 +6,7 @@ from __future__ import annotations
 from .. import ast as A
 from .. import types as T
 from ..diagnostics import Pos
-from ..symbols import VarSym
+from ..symbols import EN, EnumValueSym, VarSym
 from .context import Pass, LoopCtx
 
 
@@ -128,9 +128,9 @@ class StatementPass(Pass):
                          "copy it to a local variable first")
             if sym in self.loop.for_vars:
                 self.err(target.pos, f"cannot {verb} the FOR control variable '{sym.text}' inside its loop")
-        elif isinstance(root, A.Name) and root.sym == "EN":
+        elif isinstance(root, A.Name) and root.sym is EN:
             self.err(target.pos, f"cannot {verb} EN: it is an input")
-        elif isinstance(root, A.Name) and isinstance(root.sym, tuple):
+        elif isinstance(root, A.Name) and isinstance(root.sym, EnumValueSym):
             self.err(target.pos, f"cannot {verb} the enumeration value '{root.name}'")
         return t
 
@@ -154,11 +154,10 @@ class StatementPass(Pass):
                     if isinstance(b, T.ErrorType) or isinstance(lt, T.ErrorType):
                         continue
                     if isinstance(b, T.EnumType):
-                        if not (isinstance(e, (A.Name, A.EnumLit)) and isinstance(e.sym, tuple)
-                                and e.sym[0] is b) and not (isinstance(e, A.EnumLit) and lt is b):
+                        if not (isinstance(e.sym, EnumValueSym) and e.sym.type is b):
                             self.err(e.pos, f"CASE label must be a value of {b.name}")
                             continue
-                        values.append(b.values.index(e.sym[1] if isinstance(e, A.Name) else e.value))
+                        values.append(e.sym.index)
                     else:
                         if not self.scope_pass.is_constant_expr(e):
                             self.err(e.pos, "CASE labels must be constants")
