@@ -15,7 +15,6 @@ import signal
 import socket
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import pytest
@@ -100,7 +99,7 @@ def test_the_simulated_plant_is_deployed_only_when_asked_and_then_says_so(deploy
 def test_the_unit_asks_for_what_a_machine_needs(deployment):
     unit = (deployment / "atc-plc.service").read_text()
     for line in ("Type=notify", "NotifyAccess=main", f"ExecStart={deployment}/current/run", "Restart=always",
-                 "WatchdogSec=3", "StateDirectory=atc-plc", "LimitRTPRIO=50", "LimitMEMLOCK=infinity",
+                 "WatchdogSec=3", "StateDirectory=atc-plc", "LimitRTPRIO=51", "LimitMEMLOCK=infinity",
                  "StandardError=journal", "WantedBy=multi-user.target"):
         assert re.search(rf"^{re.escape(line)}$", unit, re.M), line
     run = (deployment / "current" / "run").read_text()

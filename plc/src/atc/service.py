@@ -324,7 +324,7 @@ RuntimeDirectory={name}
 RuntimeDirectoryMode=0750
 WorkingDirectory=/var/lib/{name}
 # SCHED_FIFO for the scan thread and memory locked (mlockall)
-LimitRTPRIO={rt_priority}
+LimitRTPRIO={rt_limit}
 LimitMEMLOCK=infinity
 {user}# log lines carry their priority (<3> error, <4> warning, <6> info) into the journal
 StandardError=journal
@@ -399,7 +399,8 @@ logged in `/var/lib/{name}/audit.log`:
   data of the last completed save; the outputs stay off meanwhile (no process drives them);
 - `WatchdogSec={watchdog}`: the runtime pings systemd while its scans run; a program stuck in a loop stops the
   pings and systemd restarts the runtime (its own scan watchdog has made the outputs safe already);
-- `LimitRTPRIO`, `LimitMEMLOCK=infinity`: SCHED_FIFO scan thread with locked memory.
+- `LimitRTPRIO` (the scan's priority + 1: the watchdog runs one above the scan), `LimitMEMLOCK=infinity`: SCHED_FIFO
+  scan thread with locked memory.
 
 ## Upgrade the program on the running machine
 From an atc-plc checkout on this machine (`scripts/setup` installs the toolchain: gcc, libmodbus-dev, Python):
@@ -450,7 +451,7 @@ def write_deployment(out: Path, release: Path, cfg: runtime.RunConfig, program: 
                      watchdog: int, user: str | None) -> None:
     simulated = cfg.io == "sim"
     fill = dict(name=name, prefix=prefix, config=program, bind=cfg.bind, port=cfg.port, watchdog=watchdog,
-                rt_priority=max(cfg.rt_priority, 1), retain=RETAIN_FILE,
+                rt_limit=max(cfg.rt_priority, 1) + 1, retain=RETAIN_FILE,
                 user=f"User={user}\n" if user else "",
                 simulated_unit=" - SIMULATED PLANT, no machine I/O" if simulated else "",
                 simulated_readme=SIMULATED_README if simulated else "")
