@@ -3,6 +3,7 @@ assert are each reported as a failure with their position, the other tests still
 XML say so; a test with inputs runs once per case of its table, each case named and placed at its row."""
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -278,3 +279,22 @@ def test_a_table_without_its_test_is_an_error(tmp_path):
     proc = plc_test(tmp_path, str(folder))
     assert proc.returncode == 1
     assert "TEST_Gone.cases.toml:1:1: error: no TEST_Gone.st beside this table" in proc.stderr, proc.stderr
+
+
+def test_c_that_the_c_compiler_rejects_in_the_test_build_is_an_internal_error_exit_3(tmp_path):
+    """The test build's C comes from sources that checked clean: the C compiler refusing it is plc's bug (exit 3,
+    as plc build), with the C and the compiler's output kept; not a user error (exit 2)."""
+    fake_cc = tmp_path / "fake-cc"
+    fake_cc.write_text("#!/bin/sh\necho 'tests.c:9:1: error: the fake compiler refuses this' >&2\nexit 1\n")
+    fake_cc.chmod(0o755)
+    cmd = [sys.executable, "-m", "plc.cli", "test", "--src", str(FIXTURES / "empty"),
+           "--build-dir", str(tmp_path / "build"), str(SELFTEST)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                          env={**os.environ, "CC": str(fake_cc)})
+    assert proc.returncode == 3, proc.stderr
+    assert "internal compiler error: the C compiler rejected the C generated" in proc.stderr
+    assert "tests.c:9:1: error: the fake compiler refuses this" in proc.stderr
+    assert "bug of the compiler, not of your program" in proc.stderr and "Traceback" not in proc.stderr
+    (log,) = (tmp_path / "build").glob("*/tests.cc.log")
+    assert log.read_text().startswith(f"$ {fake_cc} ") and (log.parent / "tests.c").exists()
+    assert not (log.parent / "tests").exists()

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from . import testcases
 from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, content_hash,
-                     print_diagnostics)
+                     print_diagnostics, run_c_compiler)
 from .project import add_view_options, project_root, refused_by_preflight
 from .resources import RUNTIME_SRC
 
@@ -88,10 +88,7 @@ def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, 
         c_file.write_text(res.c_text)
         cmd = [cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}",
                str(c_file), str(runner_c), str(SCAN_CORE[0]), "-o", str(exe) + ".tmp", "-lm"]
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise UserError("C compiler failed on the test build (a bug in plc):\n  " +
-                            "\n  ".join(proc.stderr.strip().splitlines()[:30]))
+        run_c_compiler(cmd, c_file)     # a failure is the compiler's bug: exit 3, the C and the output kept
         os.replace(str(exe) + ".tmp", exe)
     return res, exe
 
