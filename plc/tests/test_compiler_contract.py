@@ -362,3 +362,45 @@ def test_each_semantic_pass_is_a_class_of_its_own_module_run_by_name():
     # the passes' shared state is one object; a pass's own working state stays with the pass
     st = SemanticState(files, Diagnostics())
     assert not hasattr(st, "resolving") and not hasattr(st, "loop")
+
+
+def test_plc_run_c_that_the_c_compiler_rejects_in_the_program_is_an_internal_error_exit_3(
+        tmp_path, monkeypatch, capsys):
+    """plc run compiles the runtime with the C plc generated: an error the C compiler places in that program.c is
+    plc's bug (exit 3, the C and the output kept); an error elsewhere (a missing libmodbus) stays exit 1/2."""
+    from plc import cli
+    fake_cc = tmp_path / "fake-cc"
+    fake_cc.write_text("#!/bin/sh\n"
+                       "case \"$*\" in *--version*|*-MM*) exec gcc \"$@\";; esac\n"
+                       "for a in \"$@\"; do case \"$a\" in *program.c) prog=$a;; esac; done\n"
+                       "echo \"$prog:5:2: error: the fake compiler refuses this\" >&2\nexit 1\n")
+    fake_cc.chmod(0o755)
+    monkeypatch.setenv("CC", str(fake_cc))
+    monkeypatch.chdir(tmp_path)
+    src, out = tmp_path / "t.st", tmp_path / "out"
+    src.write_text(GOOD)
+    assert cli.main(["run", str(src), "--build-dir", str(out)]) == 3
+    err = capsys.readouterr().err
+    c_file = out / "program" / "program.c"
+    assert "internal compiler error: the C compiler rejected the C generated for the program" in err, err
+    assert f"{c_file}:5:2: error: the fake compiler refuses this" in err
+    assert "bug of the compiler, not of your program" in err and "Traceback" not in err
+    log = c_file.with_suffix(".cc.log")
+    assert log.read_text().startswith(f"$ {fake_cc} ") and "the fake compiler refuses this" in log.read_text()
+
+
+def test_plc_run_a_build_error_outside_the_program_is_not_called_a_compiler_bug(tmp_path, monkeypatch, capsys):
+    from plc import cli
+    fake_cc = tmp_path / "fake-cc"
+    fake_cc.write_text("#!/bin/sh\n"
+                       "case \"$*\" in *--version*|*-MM*) exec gcc \"$@\";; esac\n"
+                       "echo 'main.c:1:10: fatal error: modbus.h: No such file or directory' >&2\nexit 1\n")
+    fake_cc.chmod(0o755)
+    monkeypatch.setenv("CC", str(fake_cc))
+    monkeypatch.chdir(tmp_path)
+    src = tmp_path / "t.st"
+    src.write_text(GOOD)
+    assert cli.main(["run", str(src), "--build-dir", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "modbus.h: No such file" in err and "hint: install the Debian packages" in err
+    assert "bug of the compiler" not in err and "Traceback" not in err

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 import time
 from importlib import import_module
@@ -100,8 +101,14 @@ def cmd_run(args) -> int:
     if not c_file.exists() or c_file.read_text() != res.c_text:
         c_file.write_text(res.c_text)
     try:
-        return runtime.run_command(args, c_file)
-    except (runtime.ConfigError, runtime.RuntimeBuildError) as e:
+        return runtime.run_command(args, c_file, generated=True)
+    except runtime.RuntimeBuildError as e:
+        if not e.program_refused:
+            raise UserError(str(e)) from None
+        log = c_file.with_suffix(".cc.log")
+        log.write_text(f"$ {shlex.join(e.command)}\n{e.output}")
+        raise GeneratedCError(c_file, log, e.output) from None
+    except runtime.ConfigError as e:
         raise UserError(str(e)) from None
 
 
@@ -132,7 +139,8 @@ def cmd_retain_show(args) -> int:
 
 
 def add_compile_opts(p: argparse.ArgumentParser) -> None:
-    p.add_argument("paths", nargs="+", metavar="PATH", help=".st files, PLCopen .xml projects or directories (searched recursively)")
+    p.add_argument("paths", nargs="+", metavar="PATH",
+                   help=".st files, PLCopen .xml projects or directories (searched recursively)")
     p.add_argument("--no-portability", action="store_true", help="do not warn about constructs MATIEC rejects")
     p.add_argument("--target", choices=["openplc"], help="also check what this deploy target requires")
     p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
@@ -168,8 +176,8 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="build and run the soft-PLC (Modbus/TCP, OpenPLC map)", description=
                        "Compile the ST program (default: the project's st_src/) and run it as a soft-PLC serving "
                        "Modbus/TCP with OpenPLC's address map. Ctrl-C stops it: outputs go safe, RETAIN data "
-                       "is saved. The run configuration is --config, else the project's (its machine's, or configs/runtime.toml) "
-                       "when the sources belong to the project; the one used is printed.")
+                       "is saved. The run configuration is --config, else the project's (its machine's, or "
+                       "configs/runtime.toml) when the sources belong to the project; the one used is printed.")
     p.add_argument("paths", nargs="*", metavar="PATH", help="ST files or directories (default: st_src/)")
     runtime.add_run_arguments(p)
     add_view_options(p)

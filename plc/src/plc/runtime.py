@@ -91,7 +91,15 @@ APT_HINT = "install the Debian packages gcc, make, pkg-config and libmodbus-dev"
 
 
 class RuntimeBuildError(Exception):
-    """The runtime could not be built; str() is a message for the user (no traceback needed)."""
+    """The runtime could not be built; str() is a message for the user (no traceback needed).
+
+    `program_refused`: the C compiler reported an error in the program's C file itself (not in the runtime or a
+    missing library); `output` is everything it printed.  For C that plc generated that is a bug of plc."""
+
+    def __init__(self, message: str, program_refused: bool = False, output: str = "",
+                 command: Sequence[str] = ()) -> None:
+        super().__init__(message)
+        self.program_refused, self.output, self.command = program_refused, output, list(command)
 
 
 class ConfigError(Exception):
@@ -188,8 +196,11 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
     if result.returncode != 0:
         os.unlink(tmp_name)
         hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr else ""
+        # gcc and clang name the file of each error first: "FILE:LINE:COL: error: ..."
+        refused = any(line.startswith(f"{program_c}:") and ": error:" in line
+                      for line in result.stderr.splitlines())
         raise RuntimeBuildError(f"building the runtime with {program_c} failed:\n"
-                                f"{_trim(result.stderr)}{hint}")
+                                f"{_trim(result.stderr)}{hint}", refused, result.stdout + result.stderr, command)
     os.chmod(tmp_name, 0o755)
     os.replace(tmp_name, target)
     return target
@@ -582,14 +593,22 @@ def probe_listen(bind: str, port: int) -> None:
                                f"give another --port or stop it); nothing was written") from None
 
 
-def run_command(args: argparse.Namespace, program_c: Path) -> int:
-    """`plc run`: build if needed, then become the runtime (returns only on an error)."""
+def run_command(args: argparse.Namespace, program_c: Path, generated: bool = False) -> int:
+    """`plc run`: build if needed, then become the runtime (returns only on an error).
+
+    `generated`: plc wrote `program_c`; the C compiler refusing it then raises RuntimeBuildError to the caller
+    (an internal error of the compiler, not the user's)."""
     try:
         argv = prepare_run(args, program_c)
     except AddressInUse as exc:
         print(f"plc run: error: {exc}", file=sys.stderr)
         return 2
-    except (ConfigError, RuntimeBuildError) as exc:
+    except RuntimeBuildError as exc:
+        if generated and exc.program_refused:
+            raise
+        print(f"plc run: error: {exc}", file=sys.stderr)
+        return 1
+    except ConfigError as exc:
         print(f"plc run: error: {exc}", file=sys.stderr)
         return 1
     sys.stdout.flush()
