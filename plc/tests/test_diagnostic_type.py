@@ -32,6 +32,6 @@ def test_the_machine_check_reports_the_shared_type_as_file_and_line(tmp_path: Pa
     cfg.write_text("[carousel]\npockets = 99\n")
     _data, ck = machine.load(cfg)
     assert ck.problems and all(type(d) is Diagnostic for d in ck.problems)
-    first = ck.problems[0]
-    assert first.pos == Pos(str(cfg), 2, 0)
-    assert first.render().startswith(f"{cfg}:2: error: ")
+    pockets = next(d for d in ck.problems if "pockets:" in d.message)
+    assert pockets.pos == Pos(str(cfg), 2, 1)           # the column is known; the layout leaves it out
+    assert pockets.render().startswith(f"{cfg}:2: error: ")

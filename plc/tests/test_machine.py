@@ -50,11 +50,12 @@ def line_of(text: str, needle: str) -> int:
 
 @pytest.mark.parametrize("edit,needle,message", [
     ("pockets = 6 ", "pockets =", "[carousel] pockets: expected an integer 2..50, got 60"),
-    ("inputs = \"home+pocket\"", "inputs =", "'home+optical' is not one of"),
+    ("inputs = \"home+pocket\"", "inputs =", "[carousel] inputs: expected one of \"home+pocket\", "),
     ("homing = \"positive\"", "homing =", "counting pockets (inputs = home+pocket) needs homing"),
     ("auto_home = true", "auto_home =", "[changer] auto_home: expected true or false"),
     ("brake_ms = 50", "brake_ms", "[simulation] brake_ms: expected an integer 0..60000, got -5"),
-    ("stop_delay_ms = 0", "stop_delay_ms", "[carousel] stop_delay: unknown setting"),
+    ("stop_delay_ms = 0", "stop_delay_ms", "[carousel] unknown key 'stop_delay'\n    hint: did you mean "
+                                           "'stop_delay_ms'?"),
 ])
 def test_each_bad_setting_is_reported_with_its_line(tmp_path, edit, needle, message):
     text = CONFIG.read_text()
@@ -79,6 +80,22 @@ def test_each_bad_setting_is_reported_with_its_line(tmp_path, edit, needle, mess
 
 
 def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
+def test_mistakes_of_several_sections_are_reported_together_each_at_its_line(tmp_path):
+    """The description is read by the one TOML reader and checked by its schema (atc.machine.SCHEMA): a misspelt
+    [changer] key, a wrong [simulation] value and a misspelt section are three errors of one check."""
+    from atc import machine as machine_config
+    text = CONFIG.read_text().replace("auto_home = true", "auto_hmoe = true", 1).replace(
+        "brake_ms = 50", "brake_ms = -5", 1) + "\n[simulaton]\ncoast_ms = 1\n"
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(text)
+    _data, ck = machine_config.load(cfg)
+    assert [(d.line, d.message, d.hint) for d in ck.problems] == [
+        (line_of(text, "auto_hmoe ="), "[changer] unknown key 'auto_hmoe'", "did you mean 'auto_home'?"),
+        (line_of(text, "brake_ms ="), "[simulation] brake_ms: expected an integer 0..60000, got -5", None),
+        (line_of(text, "[simulaton]"), "unknown section [simulaton]", "did you mean [simulation]?"),
+    ]
+
+
     bad = CONFIG.read_text().replace('inputs = "home+pocket"', 'inputs = "code"').replace(
         "pocket_codes = [6, 7, 3, 1, 5, 4]", "pocket_codes = [6, 7, 3, 1, 5, 5]")
     cfg = tmp_path / "machine.toml"

@@ -13,14 +13,14 @@ simulated plant (the sequences carry the same positions as Q coordinates).
 """
 from __future__ import annotations
 
-import re
 import sys
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from plc import tomlconf
 from plc.diagnostics import FILE_LINE, Diagnostic, Pos
 from plc.project import where
+from plc.tomlconf import Bool, Field, Int, ListOf, Number, OneOf, Str, Table
 
 DEFAULT_OUT = Path("st_src") / "app" / "generated" / "FB_MachineConfig.st"
 MAP_FILE = "modbus_map/map.toml"
@@ -45,38 +45,27 @@ CODE_CHECK = {"not-controlled": "CodeOrderNotControlled", "valid-only": "CodeVal
 
 @dataclass
 class Checker:
+    """The problems of one machine description, each at the place of its key (the file read with plc.tomlconf)."""
     path: Path
-    text: str
+    doc: tomlconf.Document
     problems: list[Diagnostic] = field(default_factory=list)
     warnings: list[Diagnostic] = field(default_factory=list)
 
-    def line_of(self, section: str, key: str | None = None) -> int:
-        """Line of `key` inside `[section]` (or of the section header), 1 when not found."""
-        lines = self.text.splitlines()
-        in_sec = False
-        for n, raw in enumerate(lines, 1):
-            s = raw.split("#", 1)[0].strip()
-            m = re.fullmatch(r"\[([^\]]+)\]", s)
-            if m:
-                in_sec = m.group(1).strip() == section
-                if in_sec and key is None:
-                    return n
-                continue
-            if in_sec and key is not None and re.match(rf"{re.escape(key)}\s*=", s):
-                return n
-        return 1
-
-    def problem(self, line: int, message: str) -> None:
-        """An error at `line` of the configuration, written `file:line: error: message`."""
-        self.problems.append(Diagnostic("error", Pos(str(self.path), line, 0), message, layout=FILE_LINE))
-
-    def error(self, section: str, key: str | None, message: str) -> None:
-        self.problem(self.line_of(section, key), message)
+    def error(self, section: str, key: str | None, message: str, hint: str | None = None) -> None:
+        """An error at `key` of `[section]` (at the section when the key is not written)."""
+        self.problems.append(self.doc.diagnostic("error", _path(section, key), message, hint))
 
     def warn(self, section: str, key: str | None, message: str) -> None:
         """A warning at `key` of `[section]`: the machine works as described, but not as meant (say why)."""
-        self.warnings.append(Diagnostic("warning", Pos(str(self.path), self.line_of(section, key), 0), message,
-                                        layout=FILE_LINE))
+        self.warnings.append(self.doc.diagnostic("warning", _path(section, key), message))
+
+    def line(self, section: str, key: str | None = None) -> int:
+        """The line of `key` of `[section]` (of the section when the key is not written; 1 when neither is)."""
+        return self.doc.pos(_path(section, key)).line
+
+
+def _path(section: str, key: str | None) -> tuple:
+    return (section,) if key is None else (section, key)
 
 
 KINDS = {"carousel": "rotary toolchanger (the Logosol manual's carousel): [carousel] and [channels]",
@@ -103,101 +92,74 @@ MAP_CHANNELS = {"armAtForward": "ArmAtForward", "armAtReverse": "ArmAtReverse", 
                 "colletOpen": "ColletOpen", "toolPresent": "ToolPresent"}
 
 
+CHANNEL = Int(0, MAX_CHANNEL)
+INTEGERS, BOOLS, NUMBERS = ListOf(Int(), "integers"), ListOf(Bool(), "true/false"), ListOf(Number(), "numbers")
+# the sections of a machine description; [carousel] or [rack], as the kind says (KIND_SECTION)
 SCHEMA = {
-    "machine": {"kind": (KINDS,), "name": (str,)},
-    "channels": {"home": (int, 0, MAX_CHANNEL), "pocket": (int, 0, MAX_CHANNEL), "code": (list, int),
-                 "on": (int, 0, MAX_CHANNEL), "plus_dir": (int, 0, MAX_CHANNEL), "minus_dir": (int, 0, MAX_CHANNEL)},
-    "sequences": {"index": (str,)},
-    "carousel": {
-        "pockets": (int, 2, MAX_POCKETS), "inputs": (INPUTS,), "outputs": (OUTPUTS,), "homing": (HOMING,),
-        "code_inputs": (int, 1, 6), "code_check": (CODE_CHECK,), "debounce_scans": (int, 1, 100),
-        "home_timeout_ms": (int, 0, 600000), "pocket_timeout_ms": (int, 0, 600000), "stop_delay_ms": (int, 0, 10000),
-        "invert_home": (bool,), "invert_pocket": (bool,), "invert_on": (bool,), "invert_plus_dir": (bool,),
-        "invert_minus_dir": (bool,), "invert_code": (list, bool), "pocket_codes": (list, int),
-        "centre_on_code": (bool,),
-    },
-    "rack": {"positions": (int, 1, 50), "x": (list, float), "y": (list, float), "grip_z": (float, -100000, 100000),
-             "tolerance": (float, 0.001, 100)},
-    "changer": {"brake_release_ms": (int, 0, 10000), "auto_home": (bool,), "tool_sensor": (bool,)},
-    "simulation": {"pocket_time_ms": (int, 1, 10000), "coast_ms": (int, 0, 10000), "skew_scans": (int, 0, 100),
-                   "arm_travel_ms": (int, 1, 60000), "collet_ms": (int, 1, 60000), "brake_ms": (int, 0, 60000),
-                   "sensor_window_pct": (int, 1, 49), "code_between": (CODE_BETWEEN,),
-                   "code_window_pct": (int, 1, 49)},
+    "machine": Table((Field("kind", OneOf(tuple(KINDS)), "what changes the tools", default="carousel"),
+                      Field("name", Str()))),
+    "channels": Table((Field("home", CHANNEL, "Home Input"), Field("pocket", CHANNEL, "Pocket Input"),
+                       Field("code", INTEGERS, "Code Input 1..6"), Field("on", CHANNEL, "Output ON"),
+                       Field("plus_dir", CHANNEL, "Output +DIR"), Field("minus_dir", CHANNEL, "Output -DIR"))),
+    "sequences": Table((Field("index", Str(), "the sequence set's index, relative to the project"),)),
+    "carousel": Table((
+        Field("pockets", Int(2, MAX_POCKETS), "pocket n holds tool n", required=True),
+        Field("inputs", OneOf(tuple(INPUTS)), "the sensors that say where the carousel is", required=True),
+        Field("outputs", OneOf(tuple(OUTPUTS)), "the motor lines", required=True),
+        Field("homing", OneOf(tuple(HOMING)), "how the carousel finds its home", required=True),
+        Field("code_inputs", Int(1, 6)), Field("code_check", OneOf(tuple(CODE_CHECK))),
+        Field("debounce_scans", Int(1, 100)), Field("home_timeout_ms", Int(0, 600000)),
+        Field("pocket_timeout_ms", Int(0, 600000)), Field("stop_delay_ms", Int(0, 10000)),
+        Field("invert_home", Bool()), Field("invert_pocket", Bool()), Field("invert_on", Bool()),
+        Field("invert_plus_dir", Bool()), Field("invert_minus_dir", Bool()), Field("invert_code", BOOLS),
+        Field("pocket_codes", INTEGERS), Field("centre_on_code", Bool()))),
+    "rack": Table((
+        Field("positions", Int(1, 50), "rack position n holds tool n", required=True),
+        Field("x", NUMBERS, "the X of each position, mm", required=True),
+        Field("y", NUMBERS, "the Y of each position, mm", required=True),
+        Field("grip_z", Number(-100000, 100000), "the Z where the spindle grips a holder, mm", required=True),
+        Field("tolerance", Number(0.001, 100)))),
+    "changer": Table((Field("brake_release_ms", Int(0, 10000)), Field("auto_home", Bool()),
+                      Field("tool_sensor", Bool()))),
+    "simulation": Table((
+        Field("pocket_time_ms", Int(1, 10000)), Field("coast_ms", Int(0, 10000)), Field("skew_scans", Int(0, 100)),
+        Field("arm_travel_ms", Int(1, 60000)), Field("collet_ms", Int(1, 60000)), Field("brake_ms", Int(0, 60000)),
+        Field("sensor_window_pct", Int(1, 49)), Field("code_between", OneOf(tuple(CODE_BETWEEN))),
+        Field("code_window_pct", Int(1, 49)))),
 }
-REQUIRED = {"carousel": ("pockets", "inputs", "outputs", "homing")}
 DEFAULT_SEQUENCES = "configs/sequences/sequences.toml"
-REQUIRED_RACK = {"rack": ("positions", "x", "y", "grip_z")}
 # the positioner's configuration on a rack machine: never commanded, neutral (no homing, nothing to count)
 RACK_ROTARY = {"inputs": "code", "outputs": "enable+positive-dir", "homing": "none"}
 
 
 def load(path: Path, label: str | None = None) -> tuple[dict | None, Checker]:
     """Read and check a machine description; problems are reported at `label` (default: the path)."""
+    name = str(label or path)
     try:
-        text = path.read_text()
-    except OSError as e:
-        ck = Checker(Path(label or path), "")
-        ck.problem(0, f"cannot read: {e.strerror}")
+        doc = tomlconf.read(path, name, layout=FILE_LINE)
+    except tomlconf.TomlError as exc:
+        ck = Checker(Path(name), tomlconf.Document(name, "", {}, {}, layout=FILE_LINE))
+        ck.problems.append(exc.diagnostic)
         return None, ck
-    ck = Checker(Path(label or path), text)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        m = re.search(r"line (\d+)", str(e))
-        ck.problem(int(m.group(1)) if m else 1, f"not valid TOML: {e}")
-        return None, ck
-    for sec, val in data.items():
-        if sec not in SCHEMA:
-            ck.error(sec, None, f"unknown section [{sec}] (expected {', '.join('[' + s + ']' for s in SCHEMA)})")
-            continue
-        if not isinstance(val, dict):
-            ck.error(sec, None, f"{sec} must be a table")
-            continue
-        for key, v in val.items():
-            rule = SCHEMA[sec].get(key)
-            if rule is None:
-                ck.error(sec, key, f"[{sec}] {key}: unknown setting")
-                continue
-            check_value(ck, sec, key, v, rule)
-    kind = data.get("machine", {}).get("kind", "carousel") if isinstance(data.get("machine"), dict) else "carousel"
-    if kind in KINDS:
-        for sec in ("carousel", "rack"):
-            if sec in data and KIND_SECTION[kind] != sec:
-                want = next(k for k, v in KIND_SECTION.items() if v == sec)
-                ck.error(sec, None, f"[{sec}] belongs to a machine of kind \"{want}\"; [machine] kind = \"{kind}\" "
-                                    f"is described by [{KIND_SECTION[kind]}]")
-    for sec, keys in (REQUIRED_RACK if kind == "fixed-pockets" else REQUIRED).items():
-        for k in keys:
-            if k not in data.get(sec, {}):
-                ck.error(sec, None, f"[{sec}] {k} is required")
+    ck = Checker(Path(name), doc)
+    data = doc.data
+    checked = tomlconf.check_sections(doc, dict(SCHEMA, carousel=None, rack=None))   # the kind says which
+    machine = checked.get("machine", tomlconf.Checked())
+    kind = machine.get("kind", "carousel")
+    mine = KIND_SECTION[kind]
+    for sec in ("carousel", "rack"):
+        if sec in data and sec != mine and "kind" not in machine.bad:
+            want = next(k for k, v in KIND_SECTION.items() if v == sec)
+            doc.error((sec,), f"[{sec}] belongs to a machine of kind \"{want}\"; [machine] kind = \"{kind}\" "
+                              f"is described by [{mine}]")
+    table = data.get(mine, {})
+    if isinstance(table, dict):
+        SCHEMA[mine].check(doc, (mine,), table, f"[{mine}]")
+    ck.problems.extend(doc.in_file_order())
+    doc.diagnostics.clear()
     if not ck.problems:
         cross_checks(ck, data)
     return data, ck
-
-
-def check_value(ck: Checker, sec: str, key: str, v, rule) -> None:
-    kind = rule[0]
-    if isinstance(kind, dict):
-        if v not in kind:
-            ck.error(sec, key, f"[{sec}] {key}: '{v}' is not one of {', '.join(kind)}")
-    elif kind is str:
-        if not isinstance(v, str):
-            ck.error(sec, key, f"[{sec}] {key}: expected a string")
-    elif kind is bool:
-        if not isinstance(v, bool):
-            ck.error(sec, key, f"[{sec}] {key}: expected true or false")
-    elif kind is int:
-        if isinstance(v, bool) or not isinstance(v, int) or not (rule[1] <= v <= rule[2]):
-            ck.error(sec, key, f"[{sec}] {key}: expected an integer {rule[1]}..{rule[2]}, got {v!r}")
-    elif kind is float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (rule[1] <= v <= rule[2]):
-            ck.error(sec, key, f"[{sec}] {key}: expected a number {rule[1]:g}..{rule[2]:g}, got {v!r}")
-    elif kind is list:
-        want = (int, float) if rule[1] is float else rule[1]
-        if not isinstance(v, list) or not all(isinstance(x, want) and not (rule[1] is not bool and isinstance(x, bool))
-                                              for x in v):
-            what = {bool: "true/false", int: "integers", float: "numbers"}[rule[1]]
-            ck.error(sec, key, f"[{sec}] {key}: expected a list of {what}")
 
 
 def used_lines(car: dict) -> list[str]:
@@ -325,7 +287,7 @@ def check_simulation(ck: Checker, data: dict) -> None:
     settle = car.get("debounce_scans", 3) * SIM_SCAN_MS
     codes = car.get("pocket_codes", [])
     if code_between(data) == "nearest":         # the bits that change from one pocket's code to the next
-        changes = [bin(a ^ b).count("1") for a, b in zip(codes, codes[1:] + codes[:1])]
+        changes = [bin(a ^ b).count("1") for a, b in zip(codes, codes[1:] + codes[:1], strict=True)]
         region = t
     else:                                       # from code 0 to the pocket's code
         changes = [bin(c).count("1") for c in codes]
@@ -393,18 +355,16 @@ def sequences_index(data: dict, root: Path) -> Path:
 
 
 def tools_line(text: str) -> tuple[int, int | None]:
-    """Line of `tools = N` in a sequences.toml's [machine] table and N (None when absent)."""
-    section = ""
-    for n, raw in enumerate(text.splitlines(), 1):
-        s = raw.split("#", 1)[0].strip()
-        m = re.fullmatch(r"\[([^\]]+)\]", s)
-        if m:
-            section = m.group(1).strip()
-            continue
-        m = re.fullmatch(r"tools\s*=\s*(\d+)", s)
-        if section == "machine" and m:
-            return n, int(m.group(1))
-    return 1, None
+    """Line of `tools = N` in a sequences.toml's [machine] table and N (None when absent or not a number)."""
+    try:
+        doc = tomlconf.parse(text, "sequences.toml")
+    except tomlconf.TomlError:
+        return 1, None                  # the sequence tools report it
+    machine = doc.data.get("machine")
+    tools = machine.get("tools") if isinstance(machine, dict) else None
+    if not isinstance(tools, int) or isinstance(tools, bool):
+        return 1, None
+    return doc.pos(("machine", "tools")).line, tools
 
 
 def check_sequences(ck: Checker, data: dict, root: Path, label: str) -> None:
@@ -430,15 +390,17 @@ def check_sequences(ck: Checker, data: dict, root: Path, label: str) -> None:
 def check_sequence_outputs(ck: Checker, data: dict, text: str, rel: str) -> None:
     """No carousel motor line on a channel the sequences may write with OUT (two owners of one output)."""
     try:
-        outputs = tomllib.loads(text).get("io", {}).get("outputs", [])
-    except tomllib.TOMLDecodeError:
-        return                      # the sequence tools report it
+        index = tomlconf.parse(text, rel)
+    except tomlconf.TomlError:
+        return                          # the sequence tools report it
+    io = index.data.get("io")
+    outputs = io.get("outputs", []) if isinstance(io, dict) else []
     channels: set[int] = set()
     for item in outputs if isinstance(outputs, list) else []:
-        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", str(item))
-        if m:
-            channels.update(range(int(m.group(1)), int(m.group(2) or m.group(1)) + 1))
-    line = next((n for n, raw in enumerate(text.splitlines(), 1) if re.match(r"\s*outputs\s*=", raw)), 1)
+        low, _, high = str(item).partition("-")
+        if low.strip().isdigit() and (not high or high.strip().isdigit()):
+            channels.update(range(int(low), int(high or low) + 1))
+    line = index.pos(("io", "outputs")).line
     for key, channel in line_channels(data).items():
         if LINES[key][1] == "coil" and channel in channels:
             ck.error("channels", key, f"[channels] {key} = {channel} is also a sequence output ({rel}:{line} "
@@ -472,7 +434,6 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
     car = data["carousel"] if rack is None else dict(RACK_ROTARY, pockets=rack["positions"])
     chg = data.get("changer", {})
     sim = data.get("simulation", {})
-    chan = data.get("channels", {})
     out = [f"(* Generated by `plc machine generate` from {source} and modbus_map/map.toml: do not edit; edit the",
            "   TOML and regenerate.",
            "   FB_MachineConfig - the machine's configuration as structures; call it once per scan (no inputs). *)",
@@ -531,7 +492,7 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
                 f"RackPlant.gripZ := {thousandths(rack['grip_z'])};",
                 f"RackPlant.tolerance := {thousandths(rack.get('tolerance', 0.5))};",
                 f"RackPlant.colletTime := {ms(sim.get('collet_ms', 100))};"]
-        for i, (x, y) in enumerate(zip(rack["x"], rack["y"]), 1):
+        for i, (x, y) in enumerate(zip(rack["x"], rack["y"], strict=True), 1):
             out += [f"RackPlant.x[{i}] := {thousandths(x)};", f"RackPlant.y[{i}] := {thousandths(y)};"]
     out.append("END_FUNCTION_BLOCK")
     return "\n".join(out) + "\n"

@@ -268,7 +268,7 @@ def _load_machine_lines(rmap: RegisterMap, path: Path, diags: Diagnostics) -> No
     for i, (key, channel) in enumerate(machine.line_channels(data).items()):
         sig_name, table, description = machine.LINES[key]
         section_key = "code" if key.startswith("code") else key
-        line = ck.line_of("channels", section_key)
+        line = ck.line("channels", section_key)
         sig = Signal(index=first + i, name=sig_name, table=table, address=channel, type="BOOL",
                      direction="input" if table == "discrete_input" else "output",
                      description=description, origin=Pos(name, line, 1))
