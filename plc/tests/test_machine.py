@@ -79,7 +79,6 @@ def test_each_bad_setting_is_reported_with_its_line(tmp_path, edit, needle, mess
     assert "Traceback" not in proc.stderr
 
 
-def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
 def test_mistakes_of_several_sections_are_reported_together_each_at_its_line(tmp_path):
     """The description is read by the one TOML reader and checked by its schema (atc.machine.SCHEMA): a misspelt
     [changer] key, a wrong [simulation] value and a misspelt section are three errors of one check."""
@@ -96,6 +95,7 @@ def test_mistakes_of_several_sections_are_reported_together_each_at_its_line(tmp
     ]
 
 
+def test_code_mode_needs_one_distinct_code_per_pocket(tmp_path):
     bad = CONFIG.read_text().replace('inputs = "home+pocket"', 'inputs = "code"').replace(
         "pocket_codes = [6, 7, 3, 1, 5, 4]", "pocket_codes = [6, 7, 3, 1, 5, 5]")
     cfg = tmp_path / "machine.toml"
