@@ -221,7 +221,7 @@ class Pool:
         jobs = iter(jobs)
         pending = True
         while True:
-            for i, s in enumerate(self.slots):
+            for s in self.slots:
                 if s["job"] is None and pending:
                     try:
                         job = next(jobs)
@@ -237,9 +237,9 @@ class Pool:
             for s in busy:
                 if s["conn"] in ready:
                     try:
-                        idx, status, detail = s["conn"].recv()
+                        _idx, status, detail = s["conn"].recv()
                     except EOFError:
-                        idx, status, detail = s["job"][0], "traceback", "worker died"
+                        status, detail = "traceback", "worker died"
                     on_result(s["job"], status, detail, time.monotonic() - s["t0"])
                     s["job"] = None
                     if status == "traceback" and detail == "worker died":

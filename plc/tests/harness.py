@@ -27,7 +27,6 @@ import os
 import re
 import struct
 import subprocess
-import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,7 +115,7 @@ def driver_object() -> Path:
         tmp = obj.with_suffix(f".{os.getpid()}.tmp.o")
         parts = [obj.with_suffix(f".{os.getpid()}.{src.stem}.o") for src in (DRIVER_C, SCAN_CORE_C)]
         try:
-            for src, part in zip((DRIVER_C, SCAN_CORE_C), parts):
+            for src, part in zip((DRIVER_C, SCAN_CORE_C), parts, strict=True):
                 _gcc([*CFLAGS, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}", "-c", str(src), "-o", str(part)])
             _gcc(["-r", "-nostdlib", *map(str, parts), "-o", str(tmp)])
         finally:

@@ -263,7 +263,7 @@ nFindNone := FIND(t, 'xyz');
 ins := INSERT(s, 'XY', 2);
 del := DELETE(t, 6, 6);
 rep := REPLACE(t, 'W', 1, 7);
-long := 'abcdefghijklmnopqrstuvwxyzabcdefghijklmnopqrstuvwxyzabcdefghijklmnopqrstuvwxyzabcdefghijklmnopqrstuvwxyzabcdefghijklmnopqrstu';
+long := '{LONG}';
 cat126 := CONCAT(long, 'ABCDEF');
 lenCat := LEN(cat126);
 eqS := s = 'hello';
@@ -310,6 +310,8 @@ tod2 := TOD_TO_STRING(TOD#01:02:03);
 dt1 := DT_TO_STRING(DT#2024-01-02-12:00:00);
 END_PROGRAM
 """
+# P_Strings.long: a literal of 125 characters, longer than a source line here may be
+SRC = SRC.replace("{LONG}", "abcdefghijklmnopqrstuvwxyz" * 4 + "abcdefghijklmnopqrstu")
 
 
 @pytest.fixture(scope="module")

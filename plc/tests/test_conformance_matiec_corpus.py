@@ -6,14 +6,11 @@ shared by two enumerations, used as a default, gets a portability warning (MATIE
 """
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 
 from harness import compile_st, run_st
 
-import rt_harness as h  # noqa: E402
+import rt_harness as h
 
 CONFIG = """
 CONFIGURATION Config0
@@ -127,8 +124,8 @@ def test_the_same_input_in_two_programs_reads_the_same_value_on_the_runtime(tmp_
 
 
 def test_two_variables_at_one_address_in_one_program_stay_an_error():
-    diags = check("PROGRAM P\nVAR\n    a AT %IX0.0 : BOOL;\n    b AT %IX0.0 : BOOL;\nEND_VAR\nVAR\n    q : BOOL;\nEND_VAR\n"
-                  "q := a AND b;\nEND_PROGRAM\n")
+    diags = check("PROGRAM P\nVAR\n    a AT %IX0.0 : BOOL;\n    b AT %IX0.0 : BOOL;\nEND_VAR\n"
+                  "VAR\n    q : BOOL;\nEND_VAR\nq := a AND b;\nEND_PROGRAM\n")
     assert messages(diags, "error") == [(4, 10, "%IX0.0 is already the location of 'a'")]
 
 
@@ -141,7 +138,8 @@ def test_one_output_written_by_two_programs_is_a_warning_naming_both():
 
 
 # ------------------------------------------------------------- direct addresses --
-@pytest.mark.parametrize("stmt, col", [("a := %IX0.0;", 6), ("w := %IW3;", 6), ("IF %IX0.1 THEN a := TRUE; END_IF;", 4)])
+@pytest.mark.parametrize("stmt, col", [("a := %IX0.0;", 6), ("w := %IW3;", 6),
+                                       ("IF %IX0.1 THEN a := TRUE; END_IF;", 4)])
 def test_a_direct_address_in_a_body_is_an_error_not_a_constant(stmt, col):
     diags = check(f"PROGRAM P\nVAR a : BOOL; w : WORD; END_VAR\n{stmt}\nEND_PROGRAM\n")
     errs = messages(diags, "error")

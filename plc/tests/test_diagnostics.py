@@ -10,8 +10,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 from harness import compile_st
 from plc.cli import main as plc_main
 
@@ -229,7 +227,8 @@ def test_wrong_end_keyword_names_the_opening_loop():
 
 
 def test_missing_semicolon():
-    assert errors(prog("VAR x : INT; END_VAR", "x := 1\nx := 2;")) == [(4, 1, "expected ';' after the assignment, found 'x'")]
+    assert errors(prog("VAR x : INT; END_VAR", "x := 1\nx := 2;")) == [
+        (4, 1, "expected ';' after the assignment, found 'x'")]
 
 
 def test_end_of_file_inside_a_loop():

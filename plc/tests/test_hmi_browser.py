@@ -14,7 +14,6 @@ installs them); a browser that is present but fails is a failure.
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import shutil
 import signal
@@ -74,8 +73,8 @@ def served_plant(tmp: Path):
     binary = runtime.build_runtime(tmp / "program.c", h.CACHE, sanitize=h.SANITIZE, observer=setup.observer)
     (tmp / "token").write_text(TOKEN + "\n")
     sock = tmp / "m.sock"
-    rt = h.Runtime(binary, "--no-rt", "--sim-flag", setup.sim_flag, "--monitor", str(sock), "--monitor-token", str(tmp / "token"),
-                   "--writable-registers", "512-8191").start()
+    rt = h.Runtime(binary, "--no-rt", "--sim-flag", setup.sim_flag, "--monitor", str(sock),
+                   "--monitor-token", str(tmp / "token"), "--writable-registers", "512-8191").start()
     hmi = subprocess.Popen([sys.executable, "-m", "plc.cli", "hmi", "--port", "0", "--plc-port", str(rt.port),
                             "--monitor", str(sock), "--token-file", str(tmp / "token"), "--alarms",
                             str(tmp / "alarms.jsonl"), "--map", str(REPO / "modbus_map" / "map.toml")],
@@ -326,7 +325,8 @@ def test_go_to_pocket_and_the_recovery_steps_from_the_page_with_a_tool_in_the_sp
                     tags.write(MbxAnswerId=s["MbxRequestId"])
                 time.sleep(0.005)
             else:
-                raise AssertionError(f"Put Tool never reached step 16: {tags.read('FaultReason', 'SeqKind', 'SeqStep')}")
+                raise AssertionError("Put Tool never reached step 16: "
+                                     f"{tags.read('FaultReason', 'SeqKind', 'SeqStep')}")
             tags.write(EmcReason=8)
             tags.write(EmcAbort=True)
             h.wait_until(lambda: tags.get("EmcAbortAck"), 30 * h.SLOW, "emc-abort-ack")

@@ -47,13 +47,13 @@ def test_the_diagnostic_block_decodes_high_word_first():
 def test_the_event_description_names_signals_states_and_reasons():
     info = mapinfo.load(REPO / "modbus_map" / "map.toml")
     text = mapinfo.events_description(info)
-    lines = [l.split("\t") for l in text.splitlines() if not l.startswith("#")]
-    signals = {l[1] for l in lines if l[0] == "signal"}
+    rows = [line.split("\t") for line in text.splitlines() if not line.startswith("#")]
+    signals = {row[1] for row in rows if row[0] == "signal"}
     assert signals == {s.name for s in info.rmap.signals}
-    assert ["state", "ChangerState", "1", "AtcIdle"] in lines
-    reasons = {int(l[1]): l[3] for l in lines if l[0] == "reason"}
+    assert ["state", "ChangerState", "1", "AtcIdle"] in rows
+    reasons = {int(row[1]): row[3] for row in rows if row[0] == "reason"}
     assert reasons == {r.code: r.text for r in info.rmap.reasons}
-    assert all(len(l) in (4, 5) for l in lines), "tab-separated, no tab inside a field"
+    assert all(len(row) in (4, 5) for row in rows), "tab-separated, no tab inside a field"
 
 
 def test_every_hard_or_soft_reason_has_a_cause_and_a_remedy():

@@ -8,7 +8,7 @@ import shutil
 import subprocess
 import sys
 import tomllib
-from pathlib import Path
+from itertools import pairwise
 
 import pytest
 
@@ -61,7 +61,7 @@ def test_the_host_executes_the_put_and_get_moves_in_sequence_order(plc):
     got = served(out)
     assert [r for _, r in got] == expected_requests("put.seq", "get.seq"), out
     ids = [i for i, _ in got]
-    assert all(b == a + 1 for a, b in zip(ids, ids[1:])), f"request ids not consecutive: {ids}"
+    assert all(b == a + 1 for a, b in pairwise(ids)), f"request ids not consecutive: {ids}"
     client, tags = plc.tags()
     with client:
         s = tags.read("MbxAnswerId", "MbxRequestId", "MbxHostActive", "ToolInSpindle", "MbxOpcode", "MbxArgsId")
@@ -111,7 +111,7 @@ def test_the_host_executes_the_record_one_read_shows_whatever_the_other_block_sh
     executed = 0
     for mix in product((old, new), repeat=len(head)):
         for record in (old, new):
-            shown = dict(record, **{name: src[name] for name, src in zip(head, mix)})
+            shown = dict(record, **{name: src[name] for name, src in zip(head, mix, strict=True)})
             tags = FakeTags(shown)
             box = Mailbox(tags, [].append, answer="ok")
             box._last_id = 25                               # request 25 was answered

@@ -2,7 +2,6 @@
 `plc host` (separate processes, as an integrator runs them).  Loopback only; every wait is bounded."""
 from __future__ import annotations
 
-import os
 import re
 import signal
 import socket
@@ -10,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
@@ -254,8 +254,8 @@ def test_an_abort_at_the_handover_is_recovered_with_home_and_confirm(plc):
         # waits there however slow the machine is.
         tags.write(MbxHostActive=True)
         first = subprocess.Popen([sys.executable, "-m", "plc.cli", "host", "--port", str(plc.port), "--timeout", "600",
-                                  "--no-mailbox", "T5 M6"], cwd=REPO / "plc", stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                 text=True)
+                                  "--no-mailbox", "T5 M6"], cwd=REPO / "plc", stdout=subprocess.PIPE,
+                                 stderr=subprocess.STDOUT, text=True)
         try:
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:
@@ -313,7 +313,7 @@ def test_an_abort_at_the_handover_is_recovered_with_home_and_confirm(plc):
         s = tags.read("SimSpindleTool", "PocketTool2", "PocketTool5")
         assert (s["SimSpindleTool"], s["PocketTool2"], s["PocketTool5"]) == (5, 2, 0), s
         snapshots.append(mw_words(tags))
-    for a, b in zip(snapshots, snapshots[1:]):
+    for a, b in pairwise(snapshots):
         if a[0] != b[0]:
             assert openplc_checksum(a) != openplc_checksum(b), \
                 "the %MW words changed but OpenPLC's XOR checksum did not: it would not save them"

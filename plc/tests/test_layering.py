@@ -177,7 +177,8 @@ def test_the_bare_toolchain_checks_builds_and_tests_a_program_of_its_own(tmp_pat
     built = bare_plc("build", "st_src", "--out", str(tmp_path / "out"), cwd=tmp_path)
     assert built.returncode == 0 and (tmp_path / "out" / "program.o").is_file(), built.stderr
     tested = bare_plc("test", cwd=tmp_path)
-    assert tested.returncode == 0 and tested.stdout.strip().endswith("1 passed, 0 failed"), tested.stdout + tested.stderr
+    assert tested.returncode == 0 and tested.stdout.strip().endswith("1 passed, 0 failed"), \
+        tested.stdout + tested.stderr
     unknown = bare_plc("machine", "check", cwd=tmp_path)
     assert unknown.returncode == 2 and "invalid choice: 'machine'" in unknown.stderr
 

@@ -1,4 +1,5 @@
-"""plc machine: machines/default/machine.toml is checked with file:line errors and generates FB_MachineConfig reproducibly."""
+"""plc machine: machines/default/machine.toml is checked with file:line errors and generates FB_MachineConfig
+reproducibly."""
 from __future__ import annotations
 
 import os
@@ -45,7 +46,7 @@ def test_drift_is_an_error(tmp_path):
 
 
 def line_of(text: str, needle: str) -> int:
-    return next(n for n, l in enumerate(text.splitlines(), 1) if l.startswith(needle))
+    return next(n for n, line in enumerate(text.splitlines(), 1) if line.startswith(needle))
 
 
 @pytest.mark.parametrize("edit,needle,message", [

@@ -72,8 +72,8 @@ def test_a_machine_file_that_is_not_toml_is_named_once_not_also_as_a_map_problem
 
 def test_a_pocket_count_the_sequences_do_not_cover_names_both_files_and_the_fix(project):
     line = edit(project / MACHINE, "pockets = 6 ", "pockets = 8 ")
-    seq_line = next(n for n, l in enumerate((project / "configs/sequences/sequences.toml").read_text()
-                                            .splitlines(), 1) if l.startswith("tools ="))
+    seq_line = next(n for n, ln in enumerate((project / "configs/sequences/sequences.toml").read_text()
+                                             .splitlines(), 1) if ln.startswith("tools ="))
     result = plc("machine", "check", cwd=project)
     assert result.returncode == 1
     assert (f"{MACHINE}:{line}: error: [carousel] pockets = 8, but configs/sequences/sequences.toml:{seq_line} "

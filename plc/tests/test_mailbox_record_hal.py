@@ -136,10 +136,11 @@ def check_pair(hal: Hal, field: str, writes_in_order: list[str]) -> tuple[int, l
         moving = [p for p in pins if p not in unchanged]
         for placement in combinations_with_replacement(range(gaps), len(moving)):
             count += 1
-            seen = first_new_at_motion(hal, order, dict(zip(moving, placement)), {"field": field, "id": ID_PIN})
+            writes = dict(zip(moving, placement, strict=True))
+            seen = first_new_at_motion(hal, order, writes, {"field": field, "id": ID_PIN})
             assert seen["id"] is not None and seen["field"] is not None, "the simulation ran too short"
             if seen["field"] > seen["id"]:
-                bad.append(f"{field}: writes at {dict(zip(moving, placement))}: motion shows the new id in period "
+                bad.append(f"{field}: writes at {writes}: motion shows the new id in period "
                            f"{seen['id']}, the field only in period {seen['field']}")
     return count, bad
 
@@ -186,15 +187,16 @@ def test_the_model_finds_the_mixed_request_of_the_designs_that_had_it(variant):
     remap = (LCNC / "atc-remap.hal").read_text()
     if variant == "conversions in address order":
         lines = text.splitlines()
-        addf = [i for i, line in enumerate(lines) if line.startswith("addf atc-join-") or line.startswith("addf atc-sign-")]
-        joins = sorted((lines[i] for i in addf if "join" in lines[i]), key=lambda l: "args-id" in l)
+        addf = [i for i, line in enumerate(lines) if line.startswith(("addf atc-join-", "addf atc-sign-"))]
+        joins = sorted((lines[i] for i in addf if "join" in lines[i]), key=lambda line: "args-id" in line)
         signs = [lines[i] for i in addf if "sign" in lines[i]]
-        for i, line in zip(addf, [*signs, *joins]):
+        for i, line in zip(addf, [*signs, *joins], strict=True):
             lines[i] = line
         text = "\n".join(lines)
     else:
         remap = remap.replace("net atc-mbx-args-id => motion.analog-in-10",
-                              "net atc-mbx-args-id-raw2 mb2hal.atc-words-in-3.MbxArgsId-lo.float => motion.analog-in-10")
+                              "net atc-mbx-args-id-raw2 mb2hal.atc-words-in-3.MbxArgsId-lo.float "
+                              "=> motion.analog-in-10")
     hal = Hal([(LCNC / "atc-sim.hal").read_text(), text, remap])
     found = sum(len(check_pair(hal, field, record_pins())[1]) for field in FIELD_PINS[3:])
     assert found > 0, "the model did not find the defect it exists to find"

@@ -14,8 +14,8 @@ from atc.map import cli as map_cli
 from atc.map.generate import drift, load_and_check, outputs, write
 
 REPO = Path(__file__).resolve().parents[2]
-GENERATED = ["hmi_tags", "machines/default/machine.toml", "configs/sequences", "configs/linuxcnc/atc_mb2hal.ini", "configs/linuxcnc/atc_iov2.hal",
-             "configs/linuxcnc/atc_io.hal", "project.toml", "docs/register-map.md"]
+GENERATED = ["hmi_tags", "machines/default/machine.toml", "configs/sequences", "configs/linuxcnc/atc_mb2hal.ini",
+             "configs/linuxcnc/atc_iov2.hal", "configs/linuxcnc/atc_io.hal", "project.toml", "docs/register-map.md"]
 
 
 @pytest.fixture

@@ -7,6 +7,7 @@ import csv
 import io
 import json
 import re
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
@@ -66,7 +67,7 @@ def test_the_program_with_its_region_compiles_for_openplc_without_warnings():
 def test_hmi_csv_has_one_row_per_signal_with_access_from_the_host_side():
     rows = list(csv.DictReader(io.StringIO(OUT["hmi_tags/atc_tags.csv"])))
     assert [r["name"] for r in rows] == [s.name for s in RMAP.signals]
-    for row, sig in zip(rows, RMAP.signals):
+    for row, sig in zip(rows, RMAP.signals, strict=True):
         assert row["access"] == ("RW" if sig.direction == "host_to_plc" else "R")
         assert int(row["address"]) == sig.address and row["iec_address"] == iec_address(sig)
 
@@ -139,7 +140,7 @@ def test_a_dint_read_by_linuxcnc_is_joined_signed_and_scaled_in_hal():
     curve = sorted((float(points[k]), float(values[k])) for k in points)
 
     def through(raw: int) -> float:             # lincurve: linear between the points
-        for (x0, y0), (x1, y1) in zip(curve, curve[1:]):
+        for (x0, y0), (x1, y1) in pairwise(curve):
             if x0 <= raw <= x1:
                 return y0 + (raw - x0) * (y1 - y0) / (x1 - x0)
         raise AssertionError(raw)
@@ -216,7 +217,7 @@ def _lincurve(rel: str, name: str):
     def f(x: float) -> float:               # lincurve: piecewise linear, clamped at both ends
         if x <= xs[0]:
             return ys[0]
-        for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
+        for (x0, y0), (x1, y1) in pairwise(zip(xs, ys, strict=True)):
             if x <= x1:
                 return y0 + (x - x0) * (y1 - y0) / (x1 - x0)
         return ys[-1]

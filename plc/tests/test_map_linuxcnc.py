@@ -121,5 +121,5 @@ def test_generated_hal_and_mb2hal_carry_the_handshakes_signs_and_link_watch(work
     hal_text = outputs(load_and_check(REPO / "modbus_map" / "map.toml", Diagnostics()))[IOV2_HAL]
     lines = run_chain(work_dir, hal_text, prepares=100)
     print("\n".join(lines))
-    assert [l for l in lines if not l.startswith(("ok", "measure"))] == []
-    assert len(lines) == 8 and [l for l in lines if l.startswith("measure 100 prepares:")]
+    assert [line for line in lines if not line.startswith(("ok", "measure"))] == []
+    assert len(lines) == 8 and [line for line in lines if line.startswith("measure 100 prepares:")]

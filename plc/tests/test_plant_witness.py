@@ -94,8 +94,7 @@ def slow_machine(project: Path, name: str, pocket_ms: int, coast_ms: int) -> tup
             text += "\n[simulation]\n"
         for key, value in (("pocket_time_ms", pocket_ms), ("coast_ms", coast_ms)):
             if not re.search(rf"(?m)^{key}\s*=", text):
-                text = re.sub(r"(?m)^\[simulation\][^\n]*\n", lambda m: f"{m.group(0)}{key} = {value}\n", text,
-                              count=1)
+                text = re.sub(r"(?m)^\[simulation\][^\n]*\n", rf"\g<0>{key} = {value}\n", text, count=1)
             text = re.sub(rf"(?m)^{key}\s*=\s*\d+", f"{key} = {value}", text)
         assert re.search(rf"(?m)^pocket_time_ms = {pocket_ms}\b", text), f"{name}: no [simulation] section"
     (folder / "machine.toml").write_text(text)

@@ -295,7 +295,7 @@ def test_mutated_editor_files_give_diagnostics_never_a_traceback():
     rng = random.Random(17)
     seeds = [(FIXTURES / "first_scan.xml").read_bytes(), (REPO / "st_src/app/FB_ChangerInterlocks.xml").read_bytes()]
     garbage = ["", "0", "-1", "999", "x", "rising", "set", "T#", "1e99", "&amp;", "INT#"]
-    for run in range(150):
+    for _ in range(150):
         data = rng.choice(seeds)
         how = rng.randrange(3)
         if how == 0:

@@ -66,7 +66,10 @@ def running(project: Path, machine: str, retain: Path, log: Path):
         proc = subprocess.Popen([sys.executable, "-m", "plc.cli", "run", "--machine", machine, "--io", "sim",
                                  "--port", str(port), "--retain", str(retain)], cwd=project, stdout=out,
                                 stderr=subprocess.STDOUT, env={**os.environ, "PYTHONPATH": str(REPO / "plc" / "src")})
-    text = lambda: log.read_text(errors="replace")
+
+    def text() -> str:
+        return log.read_text(errors="replace")
+
     try:
         deadline = time.monotonic() + 300 * SLOW
         while f"listening on 127.0.0.1:{port}" not in text():

@@ -7,7 +7,6 @@ the `plc run` subcommand uses once the ST compiler has produced the C file.
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import shutil
 import signal
@@ -103,13 +102,15 @@ def test_a_full_config_is_read(tmp_path):
     cfg_file.write_text(FULL_CONFIG)
     cfg = runtime.load_config(cfg_file)
     assert cfg == runtime.RunConfig(
-        bind="127.0.0.1", port=5021, max_clients=4, frame_timeout_ms=500, read_only=True, allow=["127.0.0.1/32", "10.1.2.0/24"],
-        writable_coils=["400-799"], writable_registers=["1024-1030", "2000-2000"], io="none", io_chosen=True,
+        bind="127.0.0.1", port=5021, max_clients=4, frame_timeout_ms=500, read_only=True,
+        allow=["127.0.0.1/32", "10.1.2.0/24"], writable_coils=["400-799"],
+        writable_registers=["1024-1030", "2000-2000"], io="none", io_chosen=True,
         retain_file=tmp_path / "state" / "plc.retain", retain_interval_ms=50, retain_registers=["1024-1027"],
         realtime=False, rt_priority=20, cpu=1, cpu_latency_us=0, status_interval_s=2.5, watchdog_ms=250)
     argv = runtime.runtime_argv(Path("/x/plc-runtime"), cfg)
     assert argv[0] == "/x/plc-runtime"
-    pairs = dict(zip(argv[1::2], argv[2::2]))
+    # option -> value up to the first flag without one (--no-rt); the options after it are looked up by index
+    pairs = dict(zip(argv[1::2], argv[2::2], strict=False))
     assert pairs["--port"] == "5021" and pairs["--io"] == "none" and pairs["--max-clients"] == "4"
     assert pairs["--allow"] == "127.0.0.1/32,10.1.2.0/24" and pairs["--frame-timeout"] == "500"
     assert "--read-only" in argv

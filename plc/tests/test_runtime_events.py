@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import re
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -45,9 +44,9 @@ def app_runtime(app, tmp_path: Path) -> h.Runtime:
     """The application's runtime with its events, the monitor on tmp_path/m.sock (token TOKEN) and status lines."""
     binary, events, _info, sim_flag = app
     (tmp_path / "token").write_text(TOKEN)
-    return h.Runtime(binary, "--no-rt", "--sim-flag", sim_flag, "--events", str(events), "--monitor", str(tmp_path / "m.sock"),
-                     "--monitor-token", str(tmp_path / "token"), "--status-interval", "0.2",
-                     "--writable-registers", "512-8191")
+    return h.Runtime(binary, "--no-rt", "--sim-flag", sim_flag, "--events", str(events),
+                     "--monitor", str(tmp_path / "m.sock"), "--monitor-token", str(tmp_path / "token"),
+                     "--status-interval", "0.2", "--writable-registers", "512-8191")
 
 
 def test_the_log_tells_changes_faults_aborts_estop_homing_and_the_host_link(app, tmp_path):

@@ -10,9 +10,6 @@ part of scripts/bench.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 
 import modbus_fuzz as fz  # noqa: E402

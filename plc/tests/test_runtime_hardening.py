@@ -11,8 +11,8 @@ from __future__ import annotations
 import re
 import socket
 import struct
-import sys
 import time
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
@@ -198,12 +198,12 @@ def test_a_connection_storm_logs_one_line_per_kind_per_second_with_counts(binary
             with silent(rt.port):
                 pass
         for kinds in ((CONNECTED,), (CLOSED, RECLAIMED)):
-            h.wait_until(lambda: sum(n for _, _, n in events(rt.log, *kinds)) >= storm, 10,
+            h.wait_until(lambda kinds=kinds: sum(n for _, _, n in events(rt.log, *kinds)) >= storm, 10,
                          f"the counts of {kinds} to add up to {storm}")
             assert sum(n for _, _, n in events(rt.log, *kinds)) == storm, rt.log
         for kind in (CONNECTED, CLOSED, RECLAIMED):
             times = [t for t, _, _ in events(rt.log, kind)]
-            gaps = [(b - a) % 86400 for a, b in zip(times, times[1:])]
+            gaps = [(b - a) % 86400 for a, b in pairwise(times)]
             # the gate holds a kind for 1 s of CLOCK_MONOTONIC; a line's stamp is the wall clock in ms, read when
             # the line is formatted, after the gate's decision: a busy machine delays one stamp by a few ms (a CI
             # run saw 0.998 s). 300 events in about a second without the gate would be lines milliseconds apart.

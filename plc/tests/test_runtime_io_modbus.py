@@ -84,7 +84,8 @@ def wiring_for(machine: dict, signals: dict[str, int]) -> Wiring:
 def mechanics_for(machine: dict) -> Mechanics:
     carousel = machine["carousel"]
     pockets = carousel["pockets"]
-    return Mechanics(pockets=pockets, pocket_codes=tuple(carousel.get("pocket_codes", ())) or tuple(range(1, pockets + 1)))
+    return Mechanics(pockets=pockets,
+                     pocket_codes=tuple(carousel.get("pocket_codes", ())) or tuple(range(1, pockets + 1)))
 
 
 def free_port() -> int:
@@ -115,8 +116,8 @@ def status_input(n: int) -> str:
 
 
 def run_config(path: Path, devices: list[dict]) -> Path:
-    """The default machine's run configuration (the map gives the host-writable ranges and retained registers) with [[io.device]] tables
-    (values that are inline TOML already, like the ranges, are written as they are)."""
+    """The default machine's run configuration (the map gives the host-writable ranges and retained registers) with
+    [[io.device]] tables (values that are inline TOML already, like the ranges, are written as they are)."""
     base = tomllib.loads((REPO / "machines" / "default" / "runtime.toml").read_text())
     lines = ["[modbus]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("modbus", {}).items()]
     lines += ["", "[retain]"] + [f"{k} = {toml_value(v)}" for k, v in base.get("retain", {}).items() if k != "file"]
@@ -583,14 +584,16 @@ def test_a_loss_at_random_points_of_turns_homing_and_steps_never_leaves_a_false_
     try:
         ok(rig.plc.host("clear", "T3 M6", "T0 M6"), rig.plc)     # spindle empty: a prepare turns (tool t in pocket t)
         for k, (phase, op, begun, longest) in enumerate(LOSS_PHASES):
-            for attempt in range(4):                 # a draw after the phase's end is a miss: draw again
+            for _ in range(4):                       # a draw after the phase's end is a miss: draw again
                 here = rig.plc.read("ToolInSpindle")["ToolInSpindle"] or rig.plc.read("CurrentPocket")["CurrentPocket"]
                 target = rng.choice([t for t in range(1, 7) if min((t - here) % 6, (here - t) % 6) >= 2])
                 words = {"prepare": [f"T{target}"], "change": [f"T{target} M6"], "home": ["home"]}[op]
                 result: dict = {}
-                host = threading.Thread(target=lambda: result.update(r=rig.plc.host(*words)))
+                # the thread may outlive this draw (a join that times out): it keeps this draw's words and result
+                host = threading.Thread(target=lambda result=result, words=words:
+                                        result.update(r=rig.plc.host(*words)))
                 host.start()
-                wait_for(lambda: begun(rig.plc.read("SeqKind"), rig.module), 60 * SLOW,
+                wait_for(lambda begun=begun: begun(rig.plc.read("SeqKind"), rig.module), 60 * SLOW,
                          f"the {phase} at the module", alive=host.is_alive)
                 time.sleep(rng.uniform(0.0, longest))
                 rig.module.set_mode("silent")

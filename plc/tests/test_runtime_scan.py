@@ -12,7 +12,6 @@ import signal
 import socket
 import struct
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -297,7 +296,8 @@ def test_a_signal_stops_with_outputs_safe_and_exit_0(binary, sig):
     rc = rt.stop(sig)
     rt.assert_clean_exit(rc)
     log = rt.log
-    order = [log.index(f"{sig.name} received: stopping"), log.index("outputs safe (all coils cleared, I/O outputs at zero)"),
+    order = [log.index(f"{sig.name} received: stopping"),
+             log.index("outputs safe (all coils cleared, I/O outputs at zero)"),
              log.index("stats scans="), log.rindex("plc-runtime: stopped")]
     assert order == sorted(order), log
 

@@ -5,7 +5,6 @@ zero reported with its ST line.  Runs against the ASan/UBSan build with PLC_RUNT
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest

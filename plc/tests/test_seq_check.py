@@ -108,8 +108,10 @@ def test_seed_p_coordinates_program_equals_the_literal_one():
     # The Logosol manual rewrites its Put Tool example with P4, P7, P2, P11: both must compile to the same steps.
     literal = _steps_of(CORPUS / "valid" / "seed_put_literal.seq")
     with_p = _steps_of(CORPUS / "valid" / "seed_put_p.seq")
-    strip = lambda steps: [(s.opcode, s.channel, s.level, s.duration_ms, s.value, s.axis_mask, s.axes, s.text)
-                           for s in steps]
+
+    def strip(steps):
+        return [(s.opcode, s.channel, s.level, s.duration_ms, s.value, s.axis_mask, s.axes, s.text) for s in steps]
+
     assert strip(literal) == strip(with_p)
     assert literal[3].axes == (50000, 20000, 0, 0, 0, 0) and literal[3].axis_mask == 1 | 2
 

@@ -1,4 +1,5 @@
-"""`plc deploy openplc --out FILE.st`: the whole application (ST and PLCopen XML sources) as one ST file for an OpenPLC runtime upload.
+"""`plc deploy openplc --out FILE.st`: the whole application (ST and PLCopen XML sources) as one ST file for an
+OpenPLC runtime upload.
 
 OpenPLC compiles one uploaded .st file with its MATIEC (`iec2c -f -l -p -r -R -a`) against its own library,
 so the file holds everything of st_src/ (the library, the generated tables, the application and the

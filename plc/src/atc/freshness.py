@@ -3,7 +3,8 @@
 `plc run` and `plc test` refuse to run a program built from stale generated files: the machine description
 (machines/default/machine.toml -> FB_MachineConfig, tool table, the sequence set's tool count), the register map
 (modbus_map/ -> AtcMain's declarations and wiring, HMI tags, LinuxCNC files, docs) and the sequences
-(the machine's [sequences] index, default configs/sequences/ -> SequenceTables.st). Each problem names the command that regenerates the files.
+(the machine's [sequences] index, default configs/sequences/ -> SequenceTables.st). Each problem names the command
+that regenerates the files.
 """
 from __future__ import annotations
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from plc import tomlconf
-from plc.diagnostics import FILE_LINE, Diagnostic, Pos
+from plc.diagnostics import FILE_LINE, Diagnostic
 from plc.project import where
 from plc.tomlconf import Bool, Field, Int, ListOf, Number, OneOf, Str, Table
 

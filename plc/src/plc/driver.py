@@ -258,7 +258,7 @@ END_FUNCTION
 
 def _enum_case(td: A.TypeDecl, t: str) -> str:
     return "\n".join(f"            {t}#{v}: names[k] := '{text}';"
-                     for (v, _p, _e), text in zip(td.spec.values, td.spec.texts))
+                     for (v, _p, _e), text in zip(td.spec.values, td.spec.texts, strict=True))
 
 
 def print_diagnostics(result: CompileResult, stream=None, quiet: bool = False) -> None:

@@ -284,7 +284,8 @@ class Lexer:
                 if e.upper() in ESCAPES:
                     out.append(ESCAPES[e.upper()])
                     self.advance()
-                elif len(self.src) > self.i + 1 and all(ch in "0123456789abcdefABCDEF" for ch in self.src[self.i:self.i + 2]):
+                elif (len(self.src) > self.i + 1
+                      and all(ch in "0123456789abcdefABCDEF" for ch in self.src[self.i:self.i + 2])):
                     out.append(chr(int(self.src[self.i:self.i + 2], 16)))
                     self.advance(2)
                 else:

@@ -606,7 +606,8 @@ class Parser:
                 self.next()
 
     def looks_like_label(self) -> bool:
-        """A CASE label starts with a literal, a signed literal, an enum value or a name followed by ':', ',' or '..'."""
+        """A CASE label starts with a literal, a signed literal, an enum value or a name followed by ':', ','
+        or '..'."""
         j = self.k
         t = self.toks[j]
         if t.is_sym("-", "+"):

@@ -50,8 +50,8 @@ PASSES: dict[str, type[Pass]] = {p.pass_name: p for p in (DeclarationPass, TypeP
 HELPERS: dict[str, type[Pass]] = {p.pass_name: p for p in (ConstantEval, ExpressionTyping, CallTyping)}
 
 
-def analyze(files: list[A.SourceFile], diags: Diagnostics, order: tuple[str, ...], builtin_files: set[str] | None = None,
-            test_build: bool = False) -> Program:
+def analyze(files: list[A.SourceFile], diags: Diagnostics, order: tuple[str, ...],
+            builtin_files: set[str] | None = None, test_build: bool = False) -> Program:
     """Run the passes named in `order` over one shared SemanticState; return the typed Program."""
     st = SemanticState(files, diags, builtin_files, test_build)
     for name, cls in {**HELPERS, **PASSES}.items():

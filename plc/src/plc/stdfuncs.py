@@ -119,7 +119,8 @@ class StdFunc(A.Symbol):
                 an.err(c.pos, "MUX needs K and at least one input")
                 return T.ERROR
         elif n != fixed:
-            an.err(c.pos, f"{self.name} takes {fixed} input{'s' if fixed != 1 else ''} ({', '.join(self.params)}), got {n}")
+            an.err(c.pos, f"{self.name} takes {fixed} input{'s' if fixed != 1 else ''} "
+                          f"({', '.join(self.params)}), got {n}")
             for v in args:
                 an.expr_typing.expr(v, scope, None)
             return T.ERROR
@@ -140,7 +141,7 @@ class StdFunc(A.Symbol):
         else:
             lits = [T.resolve_base(t) for t in tys]
             target = T.LREAL if any(getattr(t, "cat", "") == "real" for t in lits) else T.DINT
-        for v, t in zip(args, tys):
+        for v, t in zip(args, tys, strict=True):
             if isinstance(T.resolve_base(t), T.LiteralType):
                 an.expr_typing.fix_literal(v, target)
                 if isinstance(v.ty, T.LiteralType):
@@ -170,7 +171,7 @@ class StdFunc(A.Symbol):
         tys = [T.resolve_base(an.expr_typing.expr(v, scope, None)) for v in args]
         if any(isinstance(t, T.Elementary) and t.cat == "time" for t in tys):
             c.time_arith = True
-            for v, t in zip(args[1:], tys[1:]):
+            for v, t in zip(args[1:], tys[1:], strict=True):
                 if isinstance(t, T.LiteralType):
                     an.expr_typing.fix_literal(v, T.DINT if t.cat == "int" else T.LREAL)
             return T.TIME

@@ -14,7 +14,6 @@ import signal
 import socket
 import struct
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -206,7 +205,7 @@ class Runtime:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait(5)
-            raise AssertionError(f"runtime did not stop within {timeout * SLOW:.0f} s; log:\n{self.log}")
+            raise AssertionError(f"runtime did not stop within {timeout * SLOW:.0f} s; log:\n{self.log}") from None
         self._reader.join(5)
         return rc
 
@@ -486,7 +485,7 @@ def kill_trials(binary: Path, directory: Path, trials: int, seed: int = 9,
                     if trial % 10 == 5:                       # a new keep value, saved before the kill
                         keep = rng.randint(1, 30000)
                         c.write_register(1024 + 20, keep)
-                        wait_until(lambda: (decode() or (0, 0))[0] == keep, 3, "the new keep value saved")
+                        wait_until(lambda keep=keep: (decode() or (0, 0))[0] == keep, 3, "the new keep value saved")
             time.sleep(rng.uniform(0.0, 0.03))
             seen = decode()                                   # a completed save, whatever happens next
             time.sleep(rng.uniform(0.0, 0.004))

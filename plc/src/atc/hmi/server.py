@@ -285,7 +285,7 @@ async def poll_monitor(hub: Hub) -> None:
             watch, scan, error = {}, hub.scan, ""
             if paths:
                 try:
-                    scan, watch = await loop.run_in_executor(None, lambda: mon.read_scan(*paths))
+                    scan, watch = await loop.run_in_executor(None, mon.read_scan, *paths)
                 except MonitorError as exc:
                     error = str(exc)
             if (watch, forces, error) != (hub.watch, hub.forces, hub.watch_error):
@@ -330,7 +330,8 @@ def run_command(hub: Hub, cmd: str, arg) -> dict:
         if cmd in ("goto", "confirm") and (not isinstance(arg, int) or isinstance(arg, bool)):
             return {"ok": False, "error": f"{cmd} needs a number"}
         if cmd in ("goto", "step") and not session.tags.has("GotoRequest"):
-            return {"ok": False, "error": "this PLC's register map has no GotoRequest: the page cannot turn the carousel"}
+            return {"ok": False,
+                    "error": "this PLC's register map has no GotoRequest: the page cannot turn the carousel"}
         session.start()            # the host heartbeat while the command runs: the PLC serves a live host only
         if cmd == "home":
             outcome = session.home()
@@ -417,7 +418,8 @@ def make_app(hub: Hub):
 
     async def info(_request):
         sigs = [{"name": s.name, "table": s.table, "address": s.address, "type": s.type, "direction": s.direction,
-                 "description": s.description, "states": {str(k): v for k, v in hub.info.states.get(s.name, {}).items()}}
+                 "description": s.description,
+                 "states": {str(k): v for k, v in hub.info.states.get(s.name, {}).items()}}
                 for s in hub.info.rmap.signals]
         return web.json_response({"signals": sigs, "pockets": hub.pockets, "token_required": True,
                                   "not_simulated": not_simulated(hub.info), "fault_lines": fault_lines(hub.info),
@@ -606,7 +608,8 @@ def main(argv: list[str]) -> int:
             await site.start()
         except OSError as exc:
             await runner.cleanup()
-            raise SystemExit(f"plc hmi: error: cannot listen on {args.bind}:{args.port}: {exc.strerror or exc}")
+            raise SystemExit(f"plc hmi: error: cannot listen on {args.bind}:{args.port}: {exc.strerror or exc}") \
+                from None
         port = site._server.sockets[0].getsockname()[1] if site._server and site._server.sockets else args.port
         print(f"plc hmi: http://{args.bind}:{port}/ (PLC {opts.plc_host}:{opts.plc_port}"
               f"{', monitor ' + str(opts.monitor_socket) if opts.monitor_socket else ''})", flush=True)

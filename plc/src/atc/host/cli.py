@@ -14,7 +14,8 @@ unless --answer ok|cancel answers them (scripted use).  --no-mailbox leaves the 
 
 Exit status: 0 every command completed; 3 every command ran but a soft fault skipped a change (the G-code
 program would continue, with #5600 = 1); 1 a command failed (hard fault, abort, timeout, lost link), the
-commands after it did not run; 2 usage, map or connection problems.  Pocket = tool number unless --tool-table gives another (LinuxCNC .tbl: T<n> P<p>).
+commands after it did not run; 2 usage, map or connection problems.  Pocket = tool number unless --tool-table
+gives another (LinuxCNC .tbl: T<n> P<p>).
 """
 from __future__ import annotations
 
@@ -56,7 +57,8 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="plc host", description="A CNC host for the atc-plc register map: the CNC end of LinuxCNC's "
                 "iov2 protocol over Modbus/TCP. Commands: Tn (prepare tool n), M6 (change), abort [REASON], "
-                "clear, home, confirm N (tool N in the spindle after an interrupted change), status; several per call (\"T5 M6\"); without commands an interactive prompt.",
+                "clear, home, confirm N (tool N in the spindle after an interrupted change), status; several per "
+                "call (\"T5 M6\"); without commands an interactive prompt.",
                 epilog="exit status: 0 done, 3 done but a soft fault skipped a change, 1 a command failed, "
                        "2 usage, map or connection problem")
     p.add_argument("commands", nargs="*", metavar="COMMAND", help="e.g. \"T5 M6\", T0, M6, abort 8, clear")

@@ -300,7 +300,7 @@ def hal_file(rmap: RegisterMap, variant: str = "iov2") -> str:
     if settle:
         out.append(f"# ---- settle: these edges wait {_num(lc.settle_s)} s (one mb2hal pass is "
                    f"{_num(1.0 / lc.update_rate_hz)} s), the other edge passes at once")
-        for sig, name in zip(settle, settle_names):
+        for sig, name in zip(settle, settle_names, strict=True):
             on, off = (0, lc.settle_s) if sig.name in falling else (lc.settle_s, 0)
             edge = "falling" if sig.name in falling else "rising"
             out += [f"# {sig.name}: {edge} edge delayed", f"setp {name}.on-delay {_num(on)}",

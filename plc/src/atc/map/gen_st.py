@@ -85,7 +85,7 @@ def constants(rmap: RegisterMap) -> list[str]:
 def splice(text: str, body: str) -> str | None:
     """`text` with the lines between the BEGIN and END markers replaced by `body`; None without markers."""
     lines = text.splitlines(keepends=True)
-    begin = next((i for i, l in enumerate(lines) if l.strip() == BEGIN), None)
+    begin = next((i for i, line in enumerate(lines) if line.strip() == BEGIN), None)
     if begin is None:
         return None
     end = next((i for i in range(begin + 1, len(lines)) if lines[i].strip() == END), None)
@@ -95,8 +95,8 @@ def splice(text: str, body: str) -> str | None:
 
 
 def marker_problem(text: str) -> str | None:
-    begins = [l for l in text.splitlines() if l.strip() == BEGIN]
-    ends = [l for l in text.splitlines() if l.strip() == END]
+    begins = [line for line in text.splitlines() if line.strip() == BEGIN]
+    ends = [line for line in text.splitlines() if line.strip() == END]
     if len(begins) != 1 or len(ends) != 1:
         return (f"needs exactly one line '{BEGIN}' and one line '{END}' "
                 f"(found {len(begins)} and {len(ends)})")
@@ -161,7 +161,7 @@ def wiring(rmap: RegisterMap) -> str:
             unwired.append(sig.name)
     for pin, expr in rmap.wiring_inputs.items():
         args.append(f"{pin} := {expr}")
-    for base, (out_pin, restore) in series.items():
+    for base, (_out_pin, restore) in series.items():
         members = sorted(((int(SERIES.match(s.name).group(2)), s) for s in rmap.signals
                           if SERIES.match(s.name) and SERIES.match(s.name).group(1) == base), key=lambda x: x[0])
         if restore:
@@ -174,7 +174,7 @@ def wiring(rmap: RegisterMap) -> str:
             continue
         if sig.direction in ("output", "plc_to_host") and sig.name.upper() in outs:
             lines.append(f"{sig.name} := {inst}.{outs[sig.name.upper()]};")
-    for base, (out_pin, restore) in series.items():
+    for base, (out_pin, _restore) in series.items():
         for sig in rmap.signals:
             m = SERIES.match(sig.name)
             if m and m.group(1) == base:
@@ -199,7 +199,7 @@ def _wrap(args: list[str], indent: int, width: int = 116) -> str:
 
 def splice_wiring(text: str, body: str) -> str | None:
     lines = text.splitlines(keepends=True)
-    begin = next((i for i, l in enumerate(lines) if l.strip() == WIRING_BEGIN), None)
+    begin = next((i for i, line in enumerate(lines) if line.strip() == WIRING_BEGIN), None)
     if begin is None:
         return None
     end = next((i for i in range(begin + 1, len(lines)) if lines[i].strip() == WIRING_END), None)

@@ -92,7 +92,7 @@ def _marker_line(rmap: RegisterMap) -> int:
         lines = (rmap.root / rmap.program_file).read_text(encoding="utf-8").splitlines()
     except OSError:
         return 0
-    return next((i for i, l in enumerate(lines, start=1) if l.strip() == gen_st.BEGIN), 0)
+    return next((i for i, line in enumerate(lines, start=1) if line.strip() == gen_st.BEGIN), 0)
 
 
 def outputs(loaded: Loaded) -> dict[str, str]:
@@ -145,7 +145,7 @@ def drift(loaded: Loaded, diags: Diagnostics, show_diff: bool = True) -> list[st
 
 
 def _first_difference(a: str, b: str) -> int:
-    for i, (x, y) in enumerate(zip(a.splitlines(), b.splitlines()), start=1):
+    for i, (x, y) in enumerate(zip(a.splitlines(), b.splitlines(), strict=False), start=1):
         if x != y:
             return i
     return min(len(a.splitlines()), len(b.splitlines())) + 1

@@ -165,7 +165,7 @@ def _step_assignments(step: Step, messages: dict[str, int]) -> list[str]:
         out.append(f"stepData.value := {step.value};")
     if step.axis_mask:
         out.append(f"stepData.axisMask := {step.axis_mask};")
-    for axis, value in zip(AXES, step.axes):
+    for axis, value in zip(AXES, step.axes, strict=True):
         if value:
             out.append(f"stepData.{axis.lower()} := {value};")
     if step.text:

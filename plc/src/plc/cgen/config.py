@@ -61,7 +61,7 @@ class ConfigGen(GenBase):
                 elif every > 1:
                     w(f"if (tick % {every}u == 0) P_{inst.type.name}_body(&{inst.cname});")
                 else:
-                    w(f"(void)tick;")
+                    w("(void)tick;")
                     w(f"P_{inst.type.name}_body(&{inst.cname});")
         else:
             w("(void)tick;")

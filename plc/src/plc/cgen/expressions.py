@@ -103,7 +103,7 @@ class ExpressionGen(GenBase):
         idx = list(e.indices)
         while idx and isinstance(t, T.ArrayType):
             subs = []
-            for (lo, hi), i in zip(t.dims, idx):
+            for (lo, hi), i in zip(t.dims, idx, strict=False):   # this array's indices; the rest index its elements
                 cv = self.const_value(i)
                 if cv is not None and lo <= cv <= hi:
                     subs.append(f"[{cv - lo}]")
@@ -117,7 +117,8 @@ class ExpressionGen(GenBase):
     def const_value(self, e):
         if isinstance(e, A.IntLit):
             return e.value
-        if isinstance(e, A.Name) and isinstance(e.sym, VarSym) and e.sym.constant and isinstance(e.sym.const_value, int):
+        if (isinstance(e, A.Name) and isinstance(e.sym, VarSym) and e.sym.constant
+                and isinstance(e.sym.const_value, int)):
             return e.sym.const_value
         return None
 

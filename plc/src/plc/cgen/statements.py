@@ -173,7 +173,6 @@ class StatementGen(GenBase):
         ct = self.ctype(t)
         ut = "uint" + str(t.bits) + "_t" if isinstance(t, T.Elementary) else "uint32_t"
         self.tmp += 1
-        n = self.tmp
         # as in MATIEC, the end and BY expressions are evaluated again on every pass
         end = self.conv_to(s.end, t)
         step = self.conv_to(s.step, t) if s.step is not None else "1"

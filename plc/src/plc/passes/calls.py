@@ -20,8 +20,8 @@ class CallTyping(Pass):
         sym = scope.lookup(c.func) if scope else None
         if sym is not None:
             if isinstance(T.resolve_base(sym.type), T.PouType):
-                self.err(c.pos, f"'{c.text}' is a function block instance: call it as a statement, then read its outputs",
-                         f"{c.text}(...); x := {c.text}.Q;")
+                self.err(c.pos, f"'{c.text}' is a function block instance: call it as a statement, then read its "
+                         "outputs", f"{c.text}(...); x := {c.text}.Q;")
             else:
                 self.err(c.pos, f"'{c.text}' is a variable, not a function")
             return T.ERROR
@@ -204,8 +204,8 @@ class CallTyping(Pass):
         if isinstance(sb, T.Elementary) and isinstance(db, T.Elementary):
             hint = f"convert explicitly: {sb.name}_TO_{db.name}(...)"
             if sb.is_int and db.is_int and sb.size < db.size:
-                self.err(pos, f"{what}: implicit conversion from {sb.name} to {db.name} (MATIEC does not widen implicitly)",
-                         hint, code="type-widening")
+                self.err(pos, f"{what}: implicit conversion from {sb.name} to {db.name} "
+                         "(MATIEC does not widen implicitly)", hint, code="type-widening")
             else:
                 self.err(pos, f"{what}: type mismatch, {src} cannot go into {dst}", hint, code="type-mismatch")
             return False

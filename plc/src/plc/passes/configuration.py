@@ -67,8 +67,9 @@ class ConfigurationPass(Pass):
             for pi in res.programs:
                 pt = self.st.prog.pous.get(pi.type_name)
                 if pt is None or pt.kind != "PROGRAM":
+                    programs = [n for n, p in self.st.prog.pous.items() if p.kind == "PROGRAM"]
                     self.err(pi.pos, f"unknown PROGRAM '{pi.type_text}'",
-                             self.type_pass.suggest(pi.type_name, [n for n, p in self.st.prog.pous.items() if p.kind == "PROGRAM"]))
+                             self.type_pass.suggest(pi.type_name, programs))
                     continue
                 task = None
                 if pi.task is None:

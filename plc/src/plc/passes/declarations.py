@@ -24,7 +24,8 @@ class DeclarationPass(Pass):
         # POU types are known before any type is resolved (FB instances as struct members are errors)
         for name, pou in self.st.pou_decls.items():
             if pou.kind in ("FUNCTION_BLOCK", "PROGRAM"):
-                self.st.prog.pous[name] = T.PouType(name, pou, pou.kind, builtin=pou.pos.file in self.st.prog.builtin_files)
+                self.st.prog.pous[name] = T.PouType(name, pou, pou.kind,
+                                                    builtin=pou.pos.file in self.st.prog.builtin_files)
 
     def claim(self, name: str, text: str, pos: Pos, what: str) -> bool:
         """Whether `name` is free for a new type, POU or configuration (a clash is reported)."""

@@ -227,7 +227,8 @@ class ExpressionTyping(Pass):
             if e.name in ("ENO", "EN") and v is None:
                 return T.BOOL
             if v is None:
-                self.err(e.pos, f"{b.name} has no member '{e.text}'", self.type_pass.suggest(e.name, b.scope.vars if b.scope else []))
+                self.err(e.pos, f"{b.name} has no member '{e.text}'",
+                         self.type_pass.suggest(e.name, b.scope.vars if b.scope else []))
                 return T.ERROR
             if v.section in ("VAR", "VAR_TEMP", "VAR_EXTERNAL") and not self.in_builtin():
                 self.err(e.pos, f"'{e.text}' is internal to {b.name}; only inputs and outputs can be read from outside")
@@ -241,7 +242,8 @@ class ExpressionTyping(Pass):
         bt = self.expr(e.base, scope, None)
         b = T.resolve_base(bt)
         for i in e.indices:
-            it = self.expr(i, scope, T.DINT if isinstance(T.resolve_base(self.peek_type(i, scope)), T.LiteralType) else None)
+            literal = isinstance(T.resolve_base(self.peek_type(i, scope)), T.LiteralType)
+            it = self.expr(i, scope, T.DINT if literal else None)
             if not isinstance(it, T.ErrorType) and not T.is_elem(it, "int", "uint"):
                 self.err(i.pos, f"array index must be an integer, not {it}")
         if isinstance(b, T.ErrorType):
@@ -310,7 +312,6 @@ class ExpressionTyping(Pass):
 
     def binary(self, e: A.Binary, scope, expected) -> T.Type:
         op = e.op
-        sub_exp = expected if op in self.ARITH or op in self.LOGIC else None
         lt = self.expr(e.left, scope, None)
         rt = self.expr(e.right, scope, None)
         lb, rb = T.resolve_base(lt), T.resolve_base(rt)
@@ -328,7 +329,8 @@ class ExpressionTyping(Pass):
                 self.fix_literal(e.right, T.DINT if rb.cat == "int" else lb)
             return lb
         # time arithmetic
-        if op in ("+", "-", "*", "/") and (T.is_elem(lb, "time", "date", "tod", "dt") or T.is_elem(rb, "time", "date", "tod", "dt")):
+        if op in ("+", "-", "*", "/") and (T.is_elem(lb, "time", "date", "tod", "dt")
+                                           or T.is_elem(rb, "time", "date", "tod", "dt")):
             return self.time_arith(e, lb, rb)
         # settle literals against the other side
         if isinstance(lb, T.LiteralType) and not isinstance(rb, T.LiteralType):
@@ -375,7 +377,8 @@ class ExpressionTyping(Pass):
         if op in self.LOGIC:
             if not (isinstance(lb, T.Elementary) and lb.is_bit):
                 self.err(e.pos, f"{op} needs BOOL or bit-string operands, not {lt}",
-                         "integers are not bit strings in IEC: convert with INT_TO_WORD" if T.is_elem(lb, "int", "uint") else None)
+                         "integers are not bit strings in IEC: convert with INT_TO_WORD"
+                         if T.is_elem(lb, "int", "uint") else None)
                 return T.ERROR
             if not self.same_for_op(lb, rb):
                 self.err(e.pos, f"{op} of {lt} and {rt}: both sides must have the same type", self.conv_hint(lt, rt))

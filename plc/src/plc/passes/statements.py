@@ -109,7 +109,8 @@ class StatementPass(Pass):
                     self.err(root.pos, f"cannot {verb} output '{root.text or root.name}' of an instance from outside",
                              "outputs are written by the function block itself")
                 elif member is not None and member.section in ("VAR", "VAR_TEMP", "VAR_EXTERNAL"):
-                    self.err(root.pos, f"'{root.text or root.name}' is internal to {inst_t.name} and cannot be written from outside")
+                    self.err(root.pos, f"'{root.text or root.name}' is internal to {inst_t.name} and cannot be "
+                             "written from outside")
                 path_through_instance = True
             root = root.base
         if isinstance(root, A.Direct):
@@ -123,7 +124,8 @@ class StatementPass(Pass):
             elif sym.location is not None and sym.location.area == "I" and not path_through_instance:
                 self.err(target.pos, f"cannot {verb} '{sym.text}': it is located at the input {sym.location.text}")
             elif sym.section == "VAR_INPUT" and not path_through_instance and target is root \
-                    and self.st.current_pou is not None and self.st.current_pou.kind != "FUNCTION" and not self.in_builtin():
+                    and self.st.current_pou is not None and self.st.current_pou.kind != "FUNCTION" \
+                    and not self.in_builtin():
                 self.err(target.pos, f"cannot {verb} input '{sym.text}' inside its own function block",
                          "copy it to a local variable first")
             if sym in self.loop.for_vars:

@@ -141,7 +141,7 @@ def type_xml(spec, parent, src: Source) -> None:
             E("derived", parent, name=spec.text or spec.name)
     elif isinstance(spec, A.EnumSpec):
         values = E("values", E("enum", parent))
-        for (name, _pos, value), text in zip(spec.values, spec.texts or [v[0] for v in spec.values]):
+        for (_name, _pos, value), text in zip(spec.values, spec.texts or [v[0] for v in spec.values], strict=True):
             if value is not None:
                 raise UserError(f"{spec.pos}: enum values with explicit numbers cannot be exported")
             E("value", values, name=text)

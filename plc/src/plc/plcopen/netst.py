@@ -589,7 +589,8 @@ class Translator:
             body: list[Line] = []
             for a in self.action_order(item):
                 self.action(a, body)
-            lines.extend(Line(ind + ln.text, ln.local_id, tuple((a + len(ind), b + len(ind), i) for a, b, i in ln.spans))
+            lines.extend(Line(ind + ln.text, ln.local_id,
+                              tuple((a + len(ind), b + len(ind), i) for a, b, i in ln.spans))
                          for ln in body)
         if open_guard:
             lines.append(Line("END_IF;", None))
