@@ -299,7 +299,6 @@ static runtime_t *start(const plc_program_t *prog, const char *file, const char 
                         int *rc)
 {
     runtime_t *rt = calloc(1, sizeof *rt);
-    char err[160];
 
     if (!rt) {
         perror("calloc");
@@ -310,6 +309,7 @@ static runtime_t *start(const plc_program_t *prog, const char *file, const char 
     rt->opt.retain_path = file;
     rt->opt.retain_interval_ms = interval_ms;
     if (registers) {
+        char err[160];
         if (addr_set_parse(&rt->opt.retain_registers, registers, MAP_HOLDING, err, sizeof err) != 0) {
             fprintf(stderr, "%s\n", err);
             exit(2);
@@ -548,7 +548,7 @@ static void a_damaged_file_is_named_set_aside_and_not_applied(void)
     for (size_t i = 0; i < sizeof damages / sizeof damages[0]; i++) {
         uint8_t *data = malloc(len + 1);
         size_t n = len;
-        REQUIRE(data);
+        REQUIRE(data != NULL);
         memcpy(data, good, len);
         damages[i].apply(data, &n);
         check_row("%s", damages[i].name);
@@ -588,7 +588,7 @@ static void a_torn_or_flipped_file_is_refused_at_every_byte(void)
         fake_t f;
         int rc;
         uint8_t *data = malloc(len);
-        REQUIRE(data);
+        REQUIRE(data != NULL);
         memcpy(data, good, len);
         data[at] ^= (uint8_t)(1u << (at % 8));
         write_bytes(file, data, len);
@@ -758,7 +758,8 @@ static void a_failed_save_is_reported_once_and_the_last_good_file_stays(void)
         CHECK_UINT(retain_saves(rt->retain), 1);
         if (decode(file, &d)) {                                       /* always one complete save on disk */
             CHECK_UINT(d.generation, r->renamed ? 2 : 1);
-            CHECK_MEM(d.e[0].value, &(int16_t){ r->renamed ? 2 : 1 }, 2);
+            int16_t saved = r->renamed ? 2 : 1;
+            CHECK_MEM(d.e[0].value, &saved, 2);
         }
         release(&d);
         if (r->call != IO_CALLS) {                                    /* a second failure */
@@ -948,7 +949,8 @@ static void a_file_of_format_version_1_is_read_once_when_its_layout_is_this_prog
     int rc;
 
     new_dir(dir, file);
-    write_bytes(file, data, v1_file(data, 0x5eed0001u, -4321, 12, 0));
+    size_t size = v1_file(data, 0x5eed0001u, -4321, 12, 0);
+    write_bytes(file, data, size);
     reset_storage();
     logcap_clear();
     runtime_t *rt = start(program_small(&f, 0x5eed0001u), file, NULL, 200, &rc);
@@ -1063,13 +1065,13 @@ static void retained_registers_are_entries_named_by_path_or_address(void)
     reset_storage();
     runtime_t *rt = start(&f.prog, file, registers, 200, &rc);
     REQUIRE_INT(rc, 0);
-    char *text = NULL;
+    char *dump = NULL;
     size_t len = 0;
-    FILE *out = open_memstream(&text, &len);
+    FILE *out = open_memstream(&dump, &len);
     REQUIRE(out != NULL);
     CHECK_INT(retain_describe(rt, out), 0);
     fclose(out);
-    CHECK_STR(text, "retain\t" M "KEEP\tINT\t-\t2\n"
+    CHECK_STR(dump, "retain\t" M "KEEP\tINT\t-\t2\n"
                     "retain\t%QW5\tWORD\t%QW5\t2\n"
                     "retain\t" M "TOOL\tINT\t%MW0\t2\n"
                     "retain\t%MW76\tWORD\t%MW76\t2\n"
@@ -1079,7 +1081,7 @@ static void retained_registers_are_entries_named_by_path_or_address(void)
                     "located\t%MW0\t" M "TOOL\tINT\tRETAIN\n"
                     "located\t%MD1\t" M "DISTANCE\tDINT\t-\n"
                     "located\t%ML0\t" M "BIG\tLINT\t-\n");
-    free(text);
+    free(dump);
     rt->pimg.qw[5] = 0x0505;
     rt->pimg.mw[76] = 76;
     rt->pimg.mw[77] = 77;

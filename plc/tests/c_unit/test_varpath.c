@@ -20,7 +20,11 @@
 typedef struct { int16_t a; plc_bool_t b; } st_pair_t;                /* ST_PAIR{A:INT;B:BOOL} */
 typedef struct { plc_bool_t f; double d; int8_t s; } st_mix_t;        /* 1, pad 7, 8, 1, pad 7: 24 bytes */
 typedef struct { int16_t tool; st_mix_t mix[2]; } st_nest_t;         /* TOOL at 0, MIX at 8: 56 bytes */
-typedef struct { plc_bool_t b; plc_string_t s; int16_t i; int32_t e; } st_text_t;   /* STRING aligned 1 */
+typedef struct {
+    // cppcheck-suppress unusedStructMember ; the layout of ST_TEXT: B places S at offset 1
+    plc_bool_t b;
+    plc_string_t s; int16_t i; int32_t e;
+} st_text_t;                                                          /* STRING aligned 1 */
 
 #define PAIR "ST_PAIR{A:INT;B:BOOL}"
 #define MIX "ST_MIX{F:BOOL;D:LREAL;S:SINT}"
@@ -220,12 +224,14 @@ static void unreadable_type_names_refuse_the_parts_below_them(void)
     }
     /* the same member list with the size C gives it is addressable */
     check_row("ST_X{A:BOOL;B:LINT}");
+    // cppcheck-suppress redundantAssignment ; varpath_resolve read the last one through one.vars
     v.type_name = "ST_X{A:BOOL;B:LINT}";
     v.size = 16;
     var_ref_t ref;
     char err[256] = "";
     CHECK_INT(varpath_resolve(&one, P "ODD.B", &ref, err, sizeof err), 0);
     CHECK(ref.addr == storage + 8);
+    // cppcheck-suppress redundantAssignment ; varpath_resolve read 16 through one.vars
     v.size = 12;                                               /* what a packed layout would give: refused */
     CHECK_INT(varpath_resolve(&one, P "ODD.B", &ref, err, sizeof err), -1);
 }
@@ -317,19 +323,19 @@ static void strings_up_to_126_characters_are_accepted(void)
 {
     var_ref_t ref = { .type = PLC_T_STRING, .type_name = "STRING", .type_len = 6 };
     uint8_t buf[VP_VALUE_MAX];
-    char err[256] = "", text[PLC_STRING_MAX + 2];
+    char err[256] = "", line[PLC_STRING_MAX + 2];
 
     REQUIRE_INT(varpath_parse_value(&ref, "tool 7 loaded", buf, err, sizeof err), 0);
     const plc_string_t *s = (const plc_string_t *)buf;
     CHECK_UINT(s->len, 13);
     CHECK_STR(s->body, "tool 7 loaded");
-    memset(text, 'x', PLC_STRING_MAX);
-    text[PLC_STRING_MAX] = 0;
-    CHECK_INT(varpath_parse_value(&ref, text, buf, err, sizeof err), 0);
+    memset(line, 'x', PLC_STRING_MAX);
+    line[PLC_STRING_MAX] = 0;
+    CHECK_INT(varpath_parse_value(&ref, line, buf, err, sizeof err), 0);
     CHECK_UINT(s->len, PLC_STRING_MAX);
-    text[PLC_STRING_MAX] = 'x';
-    text[PLC_STRING_MAX + 1] = 0;
-    CHECK_INT(varpath_parse_value(&ref, text, buf, err, sizeof err), -1);
+    line[PLC_STRING_MAX] = 'x';
+    line[PLC_STRING_MAX + 1] = 0;
+    CHECK_INT(varpath_parse_value(&ref, line, buf, err, sizeof err), -1);
     CHECK_CONTAINS(err, "a STRING holds at most 126 characters");
 }
 

@@ -194,11 +194,9 @@ static unsigned build_frame(fuzzer_t *f, enum shape s, uint8_t *out)
     case BOUNDARY:
         pdu_len = valid_pdu(f, pdu, true);
         break;
-    case BYTE_COUNT:
-        pdu_len = valid_pdu(f, pdu, false);
+    case BYTE_COUNT:                        /* a valid request, its function, byte count and length replaced */
+        (void)valid_pdu(f, pdu, false);
         pdu[0] = below(f, 2) ? MODBUS_FC_WRITE_MULTIPLE_COILS : MODBUS_FC_WRITE_MULTIPLE_REGISTERS;
-        if (pdu_len < 6)
-            pdu_len = 6;
         pdu[5] = (uint8_t)next(f);
         pdu_len = 6 + below(f, 247);                    /* the largest PDU: 253 bytes */
         break;
@@ -317,7 +315,8 @@ static void *fuzz_thread(void *arg)
             if (fd < 0) {
                 if (f->connect_failures > 1000)
                     break;
-                usleep(1000);
+                struct timespec pause = { 0, 1000000 };          /* 1 ms, then connect again */
+                nanosleep(&pause, NULL);
                 continue;
             }
         }

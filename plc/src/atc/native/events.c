@@ -531,7 +531,6 @@ int events_fault(events_t *ev)
 
 void events_status(events_t *ev, char *out, size_t n)
 {
-    char a[24];
     int k = 0;
 
     if (n)
@@ -540,9 +539,11 @@ void events_status(events_t *ev, char *out, size_t n)
         return;
     if (atomic_load(&ev->have_tool))
         k += snprintf(out + k, n - (size_t)k, " | tool %d", atomic_load(&ev->tool));
-    if (atomic_load(&ev->have_state) && k >= 0 && (size_t)k < n)
+    if (atomic_load(&ev->have_state) && k >= 0 && (size_t)k < n) {
+        char a[24];
         k += snprintf(out + k, n - (size_t)k, " | changer %s",
                       state_label(ev, R_CHANGER_STATE, atomic_load(&ev->state), a, sizeof a));
+    }
     if (atomic_load(&ev->have_fault) && k >= 0 && (size_t)k < n) {
         int f = atomic_load(&ev->fault);
         const reason_t *rs = f ? reason_of(ev, f) : NULL;

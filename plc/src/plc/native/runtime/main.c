@@ -181,7 +181,6 @@ static int parse_set(addr_set_t *s, const char *text, unsigned limit, const char
 static int parse_cpu(const char *text, int *out)
 {
     long online = sysconf(_SC_NPROCESSORS_ONLN);
-    char range[32];
     long v;
 
     if (!parse_long(text, 0, CPU_SETSIZE - 1, &v))
@@ -189,6 +188,7 @@ static int parse_cpu(const char *text, int *out)
     if (online < 1)
         online = 1;
     if (v >= online) {
+        char range[32];
         snprintf(range, sizeof range, "%s%ld", online > 1 ? "0.." : "", online - 1);
         fprintf(stderr, RT_NAME ": error: --cpu: CPU %ld is not online (online CPUs: %s)\n(try --help)\n", v,
                 range);

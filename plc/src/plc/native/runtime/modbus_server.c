@@ -56,6 +56,7 @@
 #include <sys/ioctl.h>
 #include <sys/select.h>
 #include <sys/socket.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "runtime.h"
@@ -376,7 +377,6 @@ static void accept_clients(modbus_server_t *srv)
             continue;
         }
         if (srv->n_clients >= opt->max_clients) {
-            bool fresh;
             client_t *victim = reclaimable(srv, &fresh);
             if (!victim) {
                 char why[64];
@@ -689,7 +689,8 @@ static void *server_thread(void *arg)
             if (errno == EINTR)
                 continue;
             log_msg(srv->rt->log, LOG_ERROR, "modbus: select failed: %s", strerror(errno));
-            usleep(10000);
+            struct timespec pause = { 0, 10000000 };      /* 10 ms, then select again */
+            nanosleep(&pause, NULL);
             continue;
         }
         if (ready == 0)
