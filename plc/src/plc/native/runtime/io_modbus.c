@@ -61,6 +61,18 @@
  *
  * BIT is the index of %IXa.b (8a+b), SAFE one value or one per address (0 if
  * absent).  Diagnostics per device: input registers IO_DIAG_BASE.. (runtime.h).
+ *
+ * Who checks what: `plc run` (io_config.py) validates the devices completely,
+ * with positions in the run configuration: overlaps in the image and on a
+ * device, a status input inside a di range, the settings and units of a shared
+ * serial line, the line's worst case against max age, one of tcp/rtu, at least
+ * one range.  This file does not check those again; it reads the text and
+ * checks only what a C program must check anyway -- a token it can read
+ * (KEY=VALUE, numbers), lengths against its buffers, a range's count within
+ * libmodbus' limit of one request, a range inside the device's addresses and
+ * the image, at most MAX_RANGES ranges -- and what only the target machine can
+ * tell (the serial device opens, the host answers).  Devices on one serial
+ * path share the first one's context and line settings.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -196,6 +208,8 @@ static int bad(char *err, size_t errlen, const char *token, const char *why)
     return -1;
 }
 
+/* A range's text: ADDR:COUNT:IMAGE[:SAFE,...], bounded by libmodbus' limit of one request, the device's
+ * addresses and the image (what the buffers below are sized by). */
 static int parse_range(io_device_t *d, range_kind_t kind, const char *token, const char *v,
                        uint16_t *safe_tmp, char *err, size_t errlen)
 {
@@ -203,18 +217,22 @@ static int parse_range(io_device_t *d, range_kind_t kind, const char *token, con
     const unsigned image_limit = r->bits ? MAP_BITS : MAP_WORDS;
     io_range_t *g;
     const char *p;
-    unsigned addr, count, image;
+    unsigned addr, count, image, n = 0, value;
 
     if (d->n_ranges >= MAX_RANGES)
         return bad(err, errlen, token, "too many ranges (at most 32 per device)");
     if (!parse_uint(v, 0, 65535, &addr, &p) || *p != ':' || !parse_uint(p + 1, 1, r->max_count, &count, &p)
-            || *p != ':' || !parse_uint(p + 1, 0, image_limit - 1, &image, &p) || (*p && *p != ':'))
-        return bad(err, errlen, token, "expected ADDR:COUNT:IMAGE with COUNT within libmodbus' limit of one "
-                   "request and IMAGE inside the program's image");
-    if (addr + count > 65536u || image + count > image_limit)
-        return bad(err, errlen, token, "range runs past the device's or the image's last address");
-    if (*p && !r->output)
-        return bad(err, errlen, token, "safe values belong to output ranges (co, hw) only");
+            || *p != ':' || !parse_uint(p + 1, 0, image_limit - 1, &image, &p) || (*p && !r->output)
+            || addr + count > 65536u || image + count > image_limit)
+        return bad(err, errlen, token, "not ADDR:COUNT:IMAGE[:SAFE,...] (SAFE on co and hw only) inside libmodbus' "
+                   "limit of one request, the device's addresses and the image");
+    while (*p == ':' || *p == ',') {
+        if (n >= count || !parse_uint(p + 1, 0, r->bits ? 1 : 65535, &value, &p))
+            return bad(err, errlen, token, "safe values: one value, or one per address (0/1 for coils)");
+        safe_tmp[d->n_out + n++] = (uint16_t)value;
+    }
+    if (*p || (n > 1 && n != count))
+        return bad(err, errlen, token, "safe values: one value, or one per address (0/1 for coils)");
     g = &d->ranges[d->n_ranges++];
     g->kind = kind;
     g->addr = addr;
@@ -222,14 +240,6 @@ static int parse_range(io_device_t *d, range_kind_t kind, const char *token, con
     g->image = image;
     g->at = r->output ? d->n_out : d->n_in;
     if (r->output) {
-        unsigned n = 0, value;
-        while (*p == ':' || *p == ',') {
-            if (!parse_uint(p + 1, 0, r->bits ? 1 : 65535, &value, &p) || n >= count)
-                return bad(err, errlen, token, "safe values: one value, or one per address (0/1 for coils)");
-            safe_tmp[d->n_out + n++] = (uint16_t)value;
-        }
-        if (*p || (n != 0 && n != 1 && n != count))
-            return bad(err, errlen, token, "safe values: one value, or one per address");
         for (unsigned i = n; i < count; i++)
             safe_tmp[d->n_out + i] = n == 1 ? safe_tmp[d->n_out] : 0;
         d->n_out += count;
@@ -325,8 +335,6 @@ static int parse_device(io_device_t *d, const char *spec, char *err, size_t errl
     }
     if (d->rtu == (d->port > 0))
         return bad(err, errlen, spec, "give exactly one of tcp=HOST:PORT and rtu=PATH");
-    if (d->n_ranges == 0)
-        return bad(err, errlen, spec, "no range (di, co, ir, hr, hw)");
     if (d->age_ms == 0)
         d->age_ms = 2 * d->poll_ms + d->timeout_ms;
     if (d->rtu)
@@ -346,39 +354,6 @@ static int parse_device(io_device_t *d, const char *spec, char *err, size_t errl
         return bad(err, errlen, d->name, "out of memory");
     memcpy(d->safe, safe_tmp, d->n_out * sizeof *d->safe);
     memcpy(d->out_next, d->safe, d->n_out * sizeof *d->safe);
-    return 0;
-}
-
-/* Two ranges of one table on one device, or two devices' ranges in one part of the image. */
-static int check_overlaps(io_modbus_t *io, char *err, size_t errlen)
-{
-    for (unsigned a = 0; a < io->n; a++)
-        for (unsigned i = 0; i < io->dev[a].n_ranges; i++) {
-            const io_range_t *r = &io->dev[a].ranges[i];
-            for (unsigned b = a; b < io->n; b++)
-                for (unsigned j = (b == a ? i + 1 : 0); j < io->dev[b].n_ranges; j++) {
-                    const io_range_t *s = &io->dev[b].ranges[j];
-                    bool same_area = rules[r->kind].output == rules[s->kind].output
-                                     && rules[r->kind].bits == rules[s->kind].bits;
-                    if (same_area && r->image < s->image + s->count && s->image < r->image + r->count) {
-                        snprintf(err, errlen, "devices %u and %u: ranges %s and %s overlap in the image",
-                                 a + 1, b + 1, rules[r->kind].key, rules[s->kind].key);
-                        return -1;
-                    }
-                }
-            if (io->dev[a].status_bit >= 0) {
-                const int sb = io->dev[a].status_bit;
-                for (unsigned b = 0; b < io->n; b++)
-                    for (unsigned j = 0; j < io->dev[b].n_ranges; j++) {
-                        const io_range_t *s = &io->dev[b].ranges[j];
-                        if (s->kind == RANGE_DI && (unsigned)sb >= s->image && (unsigned)sb < s->image + s->count) {
-                            snprintf(err, errlen, "device %u: status input %d lies in a di range of device %u",
-                                     a + 1, sb, b + 1);
-                            return -1;
-                        }
-                    }
-            }
-        }
     return 0;
 }
 
@@ -939,15 +914,12 @@ static void set_loss_limit(io_device_t *d)
                 "later than max age", d->index + 1, d->name, period_ms, d->timeout_ms, d->path);
     if (!d->age_given)
         d->age_ms = worst_gap + margin;
-    d->loss_ms = d->age_ms > margin ? d->age_ms - margin : 1;
-    if (d->loss_ms < worst_gap)
-        log_msg(d->rt->log, LOG_WARN, "I/O device %u (%s): max age %u ms less the line margin %u ms leaves %u ms, "
-                "less than the worst case between two polls on serial line %s (%u ms): a silent neighbour can "
-                "make it count as lost", d->index + 1, d->name, d->age_ms, margin, d->loss_ms, d->path, worst_gap);
+    d->loss_ms = d->age_ms > margin ? d->age_ms - margin : 1;   /* plc run refuses an age_ms below worst_gap + margin */
 }
 
-/* Devices on one serial line (RS-485 multi-drop) share one context and one poll thread: the first one's. */
-static int group_lines(io_modbus_t *io, char *err, size_t errlen)
+/* Devices on one serial path (RS-485 multi-drop) share one context and one poll thread: the first one's, with its
+ * line settings (plc run has checked that they are the same, and the units distinct). */
+static void group_lines(io_modbus_t *io)
 {
     for (unsigned i = 0; i < io->n; i++) {
         io_device_t *d = &io->dev[i];
@@ -958,18 +930,6 @@ static int group_lines(io_modbus_t *io, char *err, size_t errlen)
             io_device_t *o = &io->dev[j];
             if (!o->rtu || o->leader != o || strcmp(o->path, d->path) != 0)
                 continue;
-            if (o->baud != d->baud || o->parity != d->parity || o->data_bits != d->data_bits
-                    || o->stop_bits != d->stop_bits || o->timeout_ms != d->timeout_ms) {
-                snprintf(err, errlen, "devices %u and %u share serial line %s with different line settings or "
-                         "time-outs", j + 1, i + 1, d->path);
-                return -1;
-            }
-            for (io_device_t *m = o; m; m = m->next_member)
-                if (m->unit == d->unit) {
-                    snprintf(err, errlen, "devices %u and %u: unit %d twice on serial line %s", m->index + 1, i + 1,
-                             d->unit, d->path);
-                    return -1;
-                }
             io_device_t *tail = o;
             while (tail->next_member)
                 tail = tail->next_member;
@@ -983,7 +943,6 @@ static int group_lines(io_modbus_t *io, char *err, size_t errlen)
     }
     for (unsigned i = 0; i < io->n; i++)
         set_loss_limit(&io->dev[i]);
-    return 0;
 }
 
 static int open_device(io_device_t *d, char *err, size_t errlen)
@@ -1044,18 +1003,7 @@ static int modbus_open_layer(runtime_t *rt, void **state, char *err, size_t errl
             return -1;
         }
     }
-    if (check_overlaps(io, err, errlen) != 0) {
-        for (unsigned k = 0; k < io->n; k++)
-            free_device(&io->dev[k]);
-        free(io);
-        return -1;
-    }
-    if (group_lines(io, err, errlen) != 0) {
-        for (unsigned k = 0; k < io->n; k++)
-            free_device(&io->dev[k]);
-        free(io);
-        return -1;
-    }
+    group_lines(io);
     for (unsigned i = 0; i < io->n; i++) {
         io_device_t *d = &io->dev[i];
         if (open_device(d, err, errlen) != 0) {
