@@ -71,6 +71,9 @@ BAD = [
     ('[[io.device]]\nrtu = "/dev/null"\nbaud = 12345\ndiscrete_inputs = [{ address = 0, count = 8, to = "%IX0.0" }]\n',
      ":3:1: error: [[io.device]] 1: baud: 12345 is not a rate the serial driver can set"),
     ('[[io.device]]\ntcp = "127.0.0.1"\nport = 502\n', ":1:1: error: [[io.device]] 1: no ranges"),
+    ('[[io.device]]\ntcp = "127.0.0.1"\nholding_registers_read = [\n'
+     + "".join(f'  {{ address = {i}, count = 1, to = "%IW{i}" }},\n' for i in range(33)) + ']\n',
+     ":1:1: error: [[io.device]] 1: 33 ranges: a device has at most 32"),
     ('[[io.device]]\ntcp = "plc.local"\ncoils = [{ address = 0, count = 1, from = "%QX0.0" }]\n',
      ":2:1: error: [[io.device]] 1: tcp: 'plc.local' is not an IPv4 address"),
     ('[[io.device]]\ntcp = "127.0.0.1"\nrtu = "/dev/null"\ncoils = [{ address = 0, count = 1, from = "%QX0.0" }]\n',

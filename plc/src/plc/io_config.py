@@ -42,6 +42,7 @@ from .tomlconf import Check, Document, Field, Int, Invalid, OneOf, Table
 # The machine's I/O module, as laid out for both runtimes: its discrete inputs 0..31 are the map's discrete
 # inputs 0..31 (%IX0.0..%IX3.7 on our runtime), its coils 0..7 the map's coils 16..23 (%QX2.0..%QX2.7).  OpenPLC's
 # slave devices put the same module at %IX100.0.. and %QX100.0.. (`plc deploy openplc --slave-devices`).
+MAX_RANGES = 32                    # ranges per device (io_modbus.c MAX_RANGES)
 MODULE_INPUTS = (0, 32)            # first map discrete input, count
 MODULE_OUTPUTS = (16, 8)           # first map coil, count
 OPENPLC_SLAVE_FIRST_BYTE = 100     # OpenPLC v3: slave devices from %IX100.0 / %QX100.0 / %IW100 / %QW100
@@ -314,6 +315,9 @@ def _check_device(doc: Document, key: Path_, index: int, e: dict) -> IoDevice:
             _check_ranges(doc, key + (kind.key,), where, kind, e[kind.key], dev)
     if not any(kind.key in e for kind in KINDS):
         error(None, f"no ranges: give at least one of {', '.join(k.key for k in KINDS)}")
+    if len(dev.ranges) > MAX_RANGES:
+        error(None, f"{len(dev.ranges)} ranges: a device has at most {MAX_RANGES} (the runtime's table per device); "
+                    "split the device's tables into fewer, longer ranges")
     dev.bad = bad
     return dev
 
