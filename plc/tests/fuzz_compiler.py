@@ -172,7 +172,7 @@ def compile_one(text: str, check_c: bool) -> tuple[str, str]:
     from plc.driver import INCLUDE, compile_sources
     try:
         res = compile_sources([], extra_texts=[("fuzz.st", text)], generate=True)
-    except BaseException as e:            # noqa: BLE001 - anything escaping is what we are looking for
+    except BaseException as e:            # anything escaping is what we are looking for
         if isinstance(e, KeyboardInterrupt):
             raise
         tb = traceback.extract_tb(e.__traceback__)

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-import rt_harness as h  # noqa: E402
-from plc import runtime  # noqa: E402
+import rt_harness as h
+from plc import runtime
 
 PLC_ROOT = Path(__file__).resolve().parent.parent
 

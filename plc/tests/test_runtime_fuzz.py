@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import pytest
 
-import modbus_fuzz as fz  # noqa: E402
-import rt_harness as h  # noqa: E402
+import modbus_fuzz as fz
+import rt_harness as h
 
 CORPUS = fz.load_corpus()
 

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-import rt_harness as h  # noqa: E402
-from rt_harness import (MODBUS_EXCEPTION_ILLEGAL_FUNCTION, MODBUS_FC_READ_HOLDING_REGISTERS,  # noqa: E402
+import rt_harness as h
+from rt_harness import (MODBUS_EXCEPTION_ILLEGAL_FUNCTION, MODBUS_FC_READ_HOLDING_REGISTERS,
                         MODBUS_FC_WRITE_MULTIPLE_COILS, MODBUS_FC_WRITE_MULTIPLE_REGISTERS,
                         MODBUS_FC_WRITE_SINGLE_COIL, MODBUS_FC_WRITE_SINGLE_REGISTER)
 

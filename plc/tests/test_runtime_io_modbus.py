@@ -28,12 +28,12 @@ import pytest
 
 pytest.importorskip("pymodbus", reason="pymodbus is a test dependency (pip install -e 'plc[test]')")
 
-from io_module import IoModule, Mechanics, Wiring  # noqa: E402
-from rt_harness import DIAG, DIAG_BASE, SANITIZE, SANITIZER_ENV, SLOW, wait_for_scans  # noqa: E402
+from io_module import IoModule, Mechanics, Wiring
+from rt_harness import DIAG, DIAG_BASE, SANITIZE, SANITIZER_ENV, SLOW, wait_for_scans
 
-from plc.modbus import ModbusClient  # noqa: E402
-from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS  # noqa: E402
-from atc.host.tags import Tags, load_map  # noqa: E402
+from plc.modbus import ModbusClient
+from plc.io_config import MODULE_INPUTS, MODULE_OUTPUTS
+from atc.host.tags import Tags, load_map
 
 REPO = Path(__file__).resolve().parents[2]
 MAP_FILE = REPO / "modbus_map" / "map.toml"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-import rt_harness as h  # noqa: E402
+import rt_harness as h
 
 
 class NotifySocket:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-import rt_harness as h  # noqa: E402
+import rt_harness as h
 
 # A program that spins in ST: a host writes spin := 1 and the next run() never returns.
 SPIN = """\

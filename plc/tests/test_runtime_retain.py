@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-import rt_harness as h  # noqa: E402
-from plc import retainfile  # noqa: E402
+import rt_harness as h
+from plc import retainfile
 
 KEEP, SCANS = "CONFIG0.RES0.MAIN.KEEP", "CONFIG0.RES0.MAIN.SCANS"
 HEADER = retainfile.HEADER

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-import rt_harness as h  # noqa: E402
-from plc import retainfile  # noqa: E402
-from plc.driver import compile_sources  # noqa: E402
+import rt_harness as h
+from plc import retainfile
+from plc.driver import compile_sources
 
 TOOL, POCKETS, SET_A, SHOW_A = 1024, 1040, 1124, 1134     # %MW0, %MW16, %MW100, %MW110
 P = "CONFIG0.RES0.PROG."

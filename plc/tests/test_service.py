@@ -19,11 +19,11 @@ from pathlib import Path
 
 import pytest
 
-import rt_harness as h  # noqa: E402
-from plc import retainfile  # noqa: E402
+import rt_harness as h
+from plc import retainfile
 
-from atc.host.tags import load_map  # noqa: E402
-from atc.map.run_ranges import retained_registers  # noqa: E402
+from atc.host.tags import load_map
+from atc.map.run_ranges import retained_registers
 
 REPO = Path(__file__).resolve().parents[2]
 TOOL = "CONFIG0.RES0.ATC.TOOLINSPINDLE"

@@ -316,7 +316,7 @@ class IoModule:
             fut = asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop)
             try:
                 fut.result(10)
-            except Exception:     # noqa: BLE001 - best effort at teardown
+            except Exception:     # best effort at teardown
                 pass
         self._thread.join(10)
 

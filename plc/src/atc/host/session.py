@@ -196,7 +196,7 @@ class Session:
             self._thread.join(timeout=2.0)
             try:
                 self.tags.write(**{self.rmap.link.host_heartbeat: LEFT_BEAT})
-            except Exception:                # noqa: BLE001  the link may be gone already: nothing to tell then
+            except Exception:                # the link may be gone already: nothing to tell then
                 pass
 
     def _heartbeat(self) -> None:
