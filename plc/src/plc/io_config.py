@@ -31,13 +31,12 @@ a baud rate the serial driver cannot set, an age limit a serial line shared by s
 """
 from __future__ import annotations
 
-import ipaddress
 import os
 import re
 from dataclasses import dataclass, field
 from typing import Any
 
-from .tomlconf import Check, Document, Field, Int, Invalid, OneOf, Table
+from .tomlconf import Check, Document, Field, Int, Invalid, OneOf, Table, ipv4
 
 # The machine's I/O module, as laid out for both runtimes: its discrete inputs 0..31 are the map's discrete
 # inputs 0..31 (%IX0.0..%IX3.7 on our runtime), its coils 0..7 the map's coils 16..23 (%QX2.0..%QX2.7).  OpenPLC's
@@ -167,13 +166,6 @@ def _device_name(value: Any) -> str:
     return value
 
 
-def _ipv4(value: Any) -> str:
-    try:
-        return str(ipaddress.IPv4Address(value))
-    except (ipaddress.AddressValueError, ValueError, TypeError):
-        raise Invalid(f"{value!r} is not an IPv4 address") from None
-
-
 def _serial_device(value: Any) -> str:
     if not isinstance(value, str) or not value or " " in value:
         raise Invalid(f"expected the serial device's path, got {value!r}")
@@ -221,7 +213,7 @@ RTU_ONLY = ("baud", "parity", "data_bits", "stop_bits")
 
 DEVICE = Table((
     Field("name", Check(_device_name), "for log lines"),
-    Field("tcp", Check(_ipv4), "the IPv4 address of a Modbus TCP device"),
+    Field("tcp", Check(ipv4), "the IPv4 address of a Modbus TCP device"),
     Field("port", Int(1, 65535), "TCP port", default=502),
     Field("rtu", Check(_serial_device), "the serial device of a Modbus RTU line"),
     Field("baud", Check(_baud), default=19200),

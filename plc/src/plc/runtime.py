@@ -62,7 +62,7 @@ from typing import Any, Sequence
 
 from . import io_config, project, tomlconf
 from .diagnostics import Diagnostic
-from .tomlconf import Bool, Check, Field, Int, Invalid, OneOf, Table
+from .tomlconf import Bool, Check, Field, Int, Invalid, OneOf, Table, ipv4
 from .extensions import RunSetup
 from .resources import INCLUDE as INCLUDE_DIR, RUNTIME_SRC as RUNTIME_DIR
 
@@ -261,13 +261,6 @@ def _ranges(limit: int) -> Check:
     return Check(check, f"ranges of 0-{limit - 1}")
 
 
-def _ipv4(value: Any) -> str:
-    try:
-        return str(ipaddress.IPv4Address(value))
-    except (ipaddress.AddressValueError, ValueError, TypeError):
-        raise Invalid(f"{value!r} is not an IPv4 address") from None
-
-
 def _network(value: Any) -> str:
     try:
         return str(ipaddress.IPv4Network(value, strict=False))
@@ -305,7 +298,7 @@ def _seconds(value: Any) -> float:
     return float(value)
 
 
-IPV4, DISCRETE_INPUT, FILE_NAME = Check(_ipv4, "an IPv4 address"), Check(_discrete_input), Check(_file_name)
+IPV4, DISCRETE_INPUT, FILE_NAME = Check(ipv4, "an IPv4 address"), Check(_discrete_input), Check(_file_name)
 
 # The run configuration's schema: section -> its keys.  Where a key sets a RunConfig field of another name,
 # _FIELD_OF says which; a file name is relative to the configuration's directory.

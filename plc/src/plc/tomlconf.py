@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import bisect
 import difflib
+import ipaddress
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -427,6 +428,14 @@ class Kind:
 
     def refuse(self, value: Any) -> Invalid:
         return Invalid(f"expected {self.what}, got {value!r}")
+
+
+def ipv4(value: Any) -> str:
+    """A Check function: an IPv4 address in its canonical text (the run configuration's bind, a TCP device)."""
+    try:
+        return str(ipaddress.IPv4Address(value))
+    except (ipaddress.AddressValueError, ValueError, TypeError):
+        raise Invalid(f"{value!r} is not an IPv4 address") from None
 
 
 def _integer(value: Any) -> bool:
