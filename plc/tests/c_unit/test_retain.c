@@ -782,6 +782,22 @@ static void a_failed_save_is_reported_once_and_the_last_good_file_stays(void)
     }
 }
 
+/* Version A of the program runs once and saves keep 11, scans 22, b 33 and %MW0 5, %MW16 7 to `file`. */
+static void saved_by_version_a(fake_t *f, const char *file)
+{
+    int rc;
+
+    reset_storage();
+    runtime_t *rt = start(program_a(f), file, NULL, 200, &rc);
+    REQUIRE_INT(rc, 0);
+    st.keep = 11;
+    st.scans = 22;
+    st.b = 33;
+    rt->pimg.mw[0] = 5;
+    rt->pimg.mw[16] = 7;
+    stop(rt);
+}
+
 static void a_layout_change_keeps_what_matches_and_sets_the_rest_aside(void)
 {
     char dir[PATH_MAX], file[PATH_MAX];
@@ -790,15 +806,8 @@ static void a_layout_change_keeps_what_matches_and_sets_the_rest_aside(void)
     int rc;
 
     new_dir(dir, file);
-    reset_storage();
-    runtime_t *rt = start(program_a(&f), file, NULL, 200, &rc);
-    REQUIRE_INT(rc, 0);
-    st.keep = 11;
-    st.scans = 22;
-    st.b = 33;
-    rt->pimg.mw[0] = 5;
-    rt->pimg.mw[16] = 7;
-    stop(rt);
+    saved_by_version_a(&f, file);
+    runtime_t *rt;
     REQUIRE(decode(file, &a));
 
     reset_storage();
@@ -851,15 +860,8 @@ static void going_back_to_the_earlier_version_restores_what_was_set_aside(void)
     int rc;
 
     new_dir(dir, file);
-    reset_storage();
-    runtime_t *rt = start(program_a(&f), file, NULL, 200, &rc);
-    REQUIRE_INT(rc, 0);
-    st.keep = 11;
-    st.scans = 22;
-    st.b = 33;
-    rt->pimg.mw[0] = 5;
-    rt->pimg.mw[16] = 7;
-    stop(rt);
+    saved_by_version_a(&f, file);
+    runtime_t *rt;
     reset_storage();
     rt = start(program_b(&f), file, NULL, 200, &rc);                  /* the upgrade */
     REQUIRE_INT(rc, 0);
