@@ -1,7 +1,8 @@
 """`plc host` against a server that applies FC15 the way OpenPLC v3 does: whole bytes from the start address, the
-padding bits of the last data byte included (tests/host_fake_plc.py, whole_bytes=True).  The change, abort and
-fault handshakes must complete, no coil may change that the host did not mean to change, and a host waiting for
-a change must stop at once when another host aborts it."""
+padding bits of the last data byte included (tests/host_fake_plc.py, whole_bytes=True).  The host writes each
+coil with its own FC5, so the change, abort and fault handshakes complete there too, no coil changes that the
+host did not mean to change, a coil another host dropped is never written back, and a host waiting for a change
+stops at once when another host aborts it."""
 from __future__ import annotations
 
 import threading
@@ -31,16 +32,55 @@ def sets(fake: FakePlc, name: str) -> list[tuple[int, int]]:
     return [(i, e[2]) for i, e in enumerate(fake.log) if e[0] == "set" and e[1] == a]
 
 
-def test_every_coil_write_is_whole_bytes_of_host_commands(capsys):
+def test_every_coil_write_is_one_fc5_of_a_host_command(capsys):
     with FakePlc(ADDR, whole_bytes=True) as fake:
         status, out = run(fake, capsys, "T5 M6", "abort", "clear", "status")
     assert status == 0, out
     writes = [e for e in fake.log if e[0] == "write" and e[1] in (5, 15)]
     assert writes, "the host wrote no coil"
     for _w, fc, address, values in writes:
-        assert fc == 15 and address % 8 == 0 and len(values) % 8 == 0, (fc, address, len(values))
+        assert fc == 5 and address in HOST_COILS and len(values) == 1, (fc, address, values)
     changed = {e[1] for e in fake.log if e[0] == "set" and e[1] >= 400}
     assert changed <= set(HOST_COILS), f"coils changed outside the host commands: {changed - set(HOST_COILS)}"
+
+
+def test_a_coil_another_host_dropped_is_not_written_back():
+    """The lost update a read-modify-write of a shared byte made (a second host's emc-abort stayed up, and its
+    acknowledgement with it, after that host had dropped it): host B holds EmcAbort; host A writes another coil
+    of the same byte (ToolchangerFaulted, as a host does on a fault) and B drops EmcAbort at the worst moment,
+    right after any read A makes to write (or right after A's write, if A reads nothing). EmcAbort must end
+    FALSE, set and dropped by B only."""
+    from plc.modbus import ModbusClient
+    from atc.host.tags import Tags
+
+    class Interleaved(ModbusClient):
+        then = None
+
+        def read_coils(self, address: int, count: int) -> list[bool]:
+            values = super().read_coils(address, count)
+            if self.then is not None:
+                then, self.then = self.then, None
+                then()
+            return values
+
+    with FakePlc(ADDR, whole_bytes=True) as fake:
+        ca, cb = Interleaved("127.0.0.1", fake.port), ModbusClient("127.0.0.1", fake.port)
+        ca.connect()
+        cb.connect()
+        a, b = Tags(RMAP, ca), Tags(RMAP, cb)
+        try:
+            b.write(EmcAbort=True)
+            ca.then = lambda: b.write(EmcAbort=False)
+            a.write(ToolchangerFaulted=True)
+            if ca.then is not None:
+                ca.then()
+                ca.then = None
+            assert a.get("ToolchangerFaulted") is True
+            assert b.get("EmcAbort") is False, "host A wrote back the emc-abort host B had dropped"
+        finally:
+            ca.close()
+            cb.close()
+    assert [v for _i, v in sets(fake, "EmcAbort")] == [1, 0], sets(fake, "EmcAbort")
 
 
 def test_change_completes_against_whole_byte_fc15(capsys):

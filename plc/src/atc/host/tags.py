@@ -5,11 +5,13 @@ addresses).  Coils are read before registers, so a number read together with a b
 the bit (the PLC writes a reason no later than the fault bit that announces it).  Writes of several
 registers that sit next to each other go out as one FC16, so the runtime applies them between two scans.
 
-Coils are written by whole bytes (FC15 of 8 coils from a multiple of 8), each carrying the value the host means
-for every coil of the byte: OpenPLC v3 applies FC15 byte by byte, so writing 2 coils would also rewrite the
-other 6 of their byte.  The coils this host holds TRUE carry TRUE; the others are read just before and written
-back as they were (a coil the host drops is written FALSE once, then no longer held), so another client's
-command in the same byte survives unless both write the same coil at once.
+Coils are written one at a time (FC5), each request naming the one coil it sets.  OpenPLC v3 applies FC15 byte
+by byte (writing 2 coils would also rewrite the other 6 of their byte), and a read-modify-write of the byte is
+no cure when two hosts share it: a host that read the byte just before another dropped its coil writes that
+coil back TRUE (a lost update: a second host's emc-abort stayed up after it had dropped it, and the first host
+waited for its acknowledgement to fall).  With FC5 a write carries no coil the host did not mean, on our runtime
+and on OpenPLC's alike.  The coils this host holds TRUE are remembered (meant()): a command coil that reads
+FALSE while held was dropped by another client.
 """
 from __future__ import annotations
 
@@ -84,7 +86,7 @@ class Tags:
         self.client = client
         self.bit_gap = bit_gap                      # unused bits a coil/discrete read may span (fewer requests)
         self._plans: dict[tuple[str, ...], list[_Run]] = {}
-        self._owned: dict[int, bool] = {}           # coil address -> the value this host wrote last
+        self._owned: dict[int, bool] = {}           # coil address -> TRUE while this host holds the coil TRUE
 
     def signal(self, name: str) -> Signal:
         sig = self.rmap.signal(name)
@@ -141,7 +143,7 @@ class Tags:
         return self.read(name)[self.signal(name).name]
 
     def write(self, **values) -> None:
-        """Write signals: registers next to each other in one FC16 (in address order), then coils (FC5/FC15)."""
+        """Write signals: registers next to each other in one FC16 (in address order), then coils (one FC5 each)."""
         sigs = sorted(((self.signal(n), v) for n, v in values.items()), key=lambda p: (p[0].table != "holding_register",
                                                                                        p[0].address))
         i = 0
@@ -158,21 +160,19 @@ class Tags:
                 else:
                     self.client.write_registers(sig.address, words)
             elif sig.table == "coil":
-                self._write_coil_bytes(sig.address, [bool(w) for w in words])
+                self._write_coils(sig.address, [bool(w) for w in words])
             else:
                 raise KeyError(f"{sig.name} is a {sig.table}: not writable")
             i = j
 
-    def _write_coil_bytes(self, address: int, values: list[bool]) -> None:
-        """Set coils address.. to values by writing their whole bytes (read-modify-write, see the module text)."""
+    def _write_coils(self, address: int, values: list[bool]) -> None:
+        """Set coils address.. to values, one FC5 each (see the module text); TRUE ones are held, FALSE ones not."""
         for i, v in enumerate(values):
-            self._owned[address + i] = v
-        first, last = address // 8, (address + len(values) - 1) // 8
-        current = self.client.read_coils(8 * first, 8 * (last - first + 1))
-        bits = [self._owned.get(8 * first + i, b) for i, b in enumerate(current)]
-        self.client.write_coils(8 * first, bits)
-        for a in [a for a, v in self._owned.items() if not v]:
-            del self._owned[a]      # a dropped request is not held: later writes carry what the PLC shows
+            self.client.write_coil(address + i, v)
+            if v:
+                self._owned[address + i] = True
+            else:
+                self._owned.pop(address + i, None)   # a dropped request is not held
 
     def meant(self, name: str) -> bool | None:
         """TRUE while this host holds the coil TRUE; None otherwise (never written, or dropped)."""

@@ -51,8 +51,9 @@ def check(rmap: RegisterMap, facts: StFacts, diags: Diagnostics) -> None:
 # ------------------------------------------------------------- coil bytes --
 def _check_coil_bytes(rmap: RegisterMap, diags: Diagnostics) -> None:
     """OpenPLC v3 applies FC15 by whole bytes (8 coils per data byte, from the start address), so a host writing
-    its coils rewrites every coil of their bytes: a byte holding a host coil holds host coils only, and the
-    coils LinuxCNC's mb2hal writes (those with hal) never share a byte with coils other hosts write."""
+    its coils with FC15 (mb2hal) rewrites every coil of their bytes: a byte holding a host coil holds host coils
+    only, and the coils LinuxCNC's mb2hal writes (those with hal) never share a byte with coils other hosts
+    write."""
     by_byte: dict[int, list[Signal]] = {}
     for sig in rmap.signals:
         if sig.table == "coil":

@@ -30,8 +30,8 @@ def _words(sigs: list[Signal]) -> list[int]:
 
 
 def writable_coils(rmap: RegisterMap) -> list[str]:
-    """Whole bytes: hosts write their command coils by whole bytes (OpenPLC applies FC15 so), and `plc map
-    check` keeps anything else out of those bytes."""
+    """Whole bytes: an FC15 host (mb2hal) writes its command coils by whole bytes (OpenPLC applies FC15 so), and
+    `plc map check` keeps anything else out of those bytes."""
     coils = [s for s in rmap.signals if s.host_writable and s.table == "coil"]
     return ranges([a for byte in {s.address // 8 for s in coils} for a in range(8 * byte, 8 * byte + 8)])
 
