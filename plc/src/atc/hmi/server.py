@@ -322,7 +322,6 @@ def run_command(hub: Hub, cmd: str, arg) -> dict:
     client.connect()
     session = Session(rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60.0))
     try:
-        session = Session(rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60.0))
         if cmd not in ("home", "clear", "goto", "step", "confirm"):
             return {"ok": False, "error": f"unknown command '{cmd}' (home, step, goto, clear, confirm)"}
         if cmd == "step" and arg not in (1, -1):
@@ -369,6 +368,7 @@ def goto(session: Session, hub: Hub, pocket: int) -> dict:
             s = tags.read("GotoAnswer", "ScanCount", "CurrentPocket", "FaultReason")
             answer = hub.info.state_name("GotoAnswer", s["GotoAnswer"])
             if (int(s["ScanCount"]) - scan0) % 65536 >= 2 and answer != "Turning":
+                request_seen = bool(tags.get("GotoRequest")) if answer == "None" else True
                 break
             if time.monotonic() > deadline:
                 return {"ok": False, "error": f"go to pocket {pocket}: no answer from the PLC within "
@@ -376,6 +376,11 @@ def goto(session: Session, hub: Hub, pocket: int) -> dict:
             time.sleep(0.01)
     finally:
         tags.write(GotoRequest=False)
+    if answer == "None":
+        # the program answers every rising edge it sees (FB_AtcChanger): none after two scans means it saw none
+        return {"ok": False, "error": f"go to pocket {pocket}: the PLC did not see the request (GotoAnswer None "
+                f"{(int(s['ScanCount']) - scan0) % 65536} scans after GotoRequest was written; it read back "
+                f"{'TRUE' if request_seen else 'FALSE'})"}
     text = GOTO_TEXT.get(answer, f"GotoAnswer {answer}").format(p=pocket, n=hub.pockets)
     if answer == "Done" and int(s["CurrentPocket"]) == pocket:
         return {"ok": True, "text": f"go to pocket {pocket}: {text}"}
