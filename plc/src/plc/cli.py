@@ -205,7 +205,8 @@ TOOLCHAIN_DELEGATED = {
     "status": ("the soft-PLC's diagnostic block: state, scan times, Modbus counters (plc status --help)",
                "plc.hmi.status"),
     "monitor": ("watch, write and force variables of the running PLC (plc monitor --help)", "plc.hmi.cli"),
-    "import": ("PLCopen XML to ST files: plc import plcopen FILE.xml --out DIR", "plc.plcopen.importer"),
+    "import": ("PLCopen XML or an Editor v4 folder to ST: plc import plcopen|openplc-editor PATH --out DIR",
+               "plc.plcopen.importer"),
     "export": ("ST project to PLCopen XML: plc export plcopen --out FILE.xml", "plc.plcopen.exporter"),
 }
 

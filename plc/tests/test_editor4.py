@@ -1,0 +1,222 @@
+"""OpenPLC Editor v4 project folders: `plc import openplc-editor` (docs/openplc-editor.md).
+
+The fixture project (fixtures/editor4/counter) is our own, written in the Editor's folder format: an LD
+counter (CTU, a seal-in through a parallel branch, a scan counter fed back through a variable), an FBD
+network (blocks, a connector with two continuations, an ST function used as a block), an ST function and
+program, an enumerated data type and the configuration in project.json.  Its scan tests
+(fixtures/editor4/counter_tests) compare every drawn POU with an ST twin on every scan."""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from plc.plcopen import importer
+
+REPO = Path(__file__).resolve().parents[2]
+FIXTURE = REPO / "plc" / "tests" / "fixtures" / "editor4" / "counter"
+SCAN_TESTS = REPO / "plc" / "tests" / "fixtures" / "editor4" / "counter_tests"
+
+
+def plc(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "plc.cli", *args], capture_output=True, text=True, cwd=REPO,
+                          timeout=600, env={**os.environ, "PYTHONPATH": str(REPO / "plc" / "src")})
+
+
+def run_import(folder: Path, out: Path, capsys) -> tuple[int, str]:
+    code = importer.main(["openplc-editor", str(folder), "--out", str(out)])
+    cap = capsys.readouterr()
+    assert "Traceback" not in cap.err + cap.out
+    return code, cap.err
+
+
+def project_copy(tmp_path: Path) -> Path:
+    dst = tmp_path / "proj"
+    shutil.copytree(FIXTURE, dst)
+    return dst
+
+
+def line_of(path: Path, needle: str, nth: int = 1) -> int:
+    """1-based line of the nth occurrence of needle in a file."""
+    text = path.read_text(encoding="utf-8")
+    at = -1
+    for _ in range(nth):
+        at = text.index(needle, at + 1)
+    return text.count("\n", 0, at) + 1
+
+
+def test_the_project_imports_checks_clean_for_openplc_and_passes_its_scan_tests(tmp_path):
+    out = tmp_path / "st"
+    r = plc("import", "openplc-editor", str(FIXTURE), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "wrote 6 file(s)" in r.stderr and "0 error(s), 0 warning(s)" in r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["Clamp.st", "Config0.st", "FbdScale.st", "LdCounter.st",
+                                                      "Main.st", "OpMode.st"]
+    ld = (out / "LdCounter.st").read_text()
+    assert "LD body, 3 rung(s)" in ld
+    assert "Running := (Start OR Running) AND NOT Stop;" in ld          # the parallel branch is a wired OR
+    assert "Counter(CU := Pulse, R := Reset, PV := Preset);" in ld      # pin variables are block arguments
+    fbd = (out / "FbdScale.st").read_text()
+    assert "Scaled := Clamp(Value := out" in fbd                         # through the connector Sum
+    config = (out / "Config0.st").read_text()
+    assert "TASK MainTask(INTERVAL := T#20ms, PRIORITY := 1);" in config
+    assert "PulseIn AT %IX0.0 : BOOL;" in config
+    assert "OpMode : (Idle, Counting, Finished) := Idle;" in (out / "OpMode.st").read_text()
+    r = plc("check", "--target", "openplc", str(out))
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "clean" in r.stdout + r.stderr
+    r = plc("test", "--src", str(out), "--build-dir", str(tmp_path / "build"), str(SCAN_TESTS))
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert re.search(r"^4 passed, 0 failed$", r.stdout, re.M), r.stdout
+
+
+def test_help_and_usage_errors(tmp_path, capsys):
+    r = plc("import", "openplc-editor", "--help")
+    assert r.returncode == 0 and "Exit 0 written, 1 project errors (nothing written), 2 usage" in " ".join(
+        r.stdout.split())
+    assert importer.main(["openplc-editor", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+    assert "not an OpenPLC Editor v4 project folder" in capsys.readouterr().err
+    assert importer.main(["openplc-editor", str(FIXTURE)]) == 2                    # --out is required
+    capsys.readouterr()
+    assert importer.main(["plcopen", str(FIXTURE), "--out", str(tmp_path / "o")]) == 2
+    assert "use plc import openplc-editor" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_malformed_json_body_is_an_error_at_its_line_and_column(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
+    text = ld.read_text()
+    ld.write_text(text.replace('"comment": "start/stop with a seal-in branch",',
+                               '"comment": "start/stop with a seal-in branch"'))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    line = line_of(ld, '"defaultBounds"', 2)      # the key after the missing comma
+    assert re.search(rf"LdCounter\.ld:{line}:\d+: error: in LdCounter: malformed JSON body: Expecting ',' "
+                     "delimiter", err), err
+    assert "nothing written" in err and not (tmp_path / "out").exists()
+
+
+def test_malformed_project_json_is_an_error_at_its_position(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    pj = proj / "project.json"
+    pj.write_text(pj.read_text().replace('"priority": 1', '"priority": 1,'))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    line = line_of(pj, '"priority": 1,') + 1
+    assert re.search(rf"project\.json:{line}:\d+: error: malformed JSON", err), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_dangling_edge_names_file_pou_rung_edge_and_its_line(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
+    ld.write_text(ld.read_text().replace('"target": "coil_done"', '"target": "coil_gone"'))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    line = line_of(ld, '"id": "e_block_ctu_coil_done"')
+    assert f"LdCounter.ld:{line}:1: error: in LdCounter, rung 1: edge 'e_block_ctu_coil_done' goes to node " \
+           "'coil_gone', which rung 1 does not have" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_pin_variable_of_a_missing_block_is_an_error_at_the_variable(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
+    text = ld.read_text()
+    old = '"id": "block_add",\n              "handleId": "IN2"'
+    assert old in text
+    ld.write_text(text.replace(old, old.replace("block_add", "block_sub")))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    line = line_of(ld, '"id": "var_one"')
+    assert f"LdCounter.ld:{line}:1: error: in LdCounter, rung 3: variable '1' " \
+           "belongs to block node 'block_sub', which this rung does not have" in err, err
+
+
+def test_unknown_block_type_is_an_error_at_the_node(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    fbd = proj / "pous" / "function-blocks" / "FbdScale.fbd"
+    fbd.write_text(fbd.read_text().replace('"name": "Clamp"', '"name": "Clamb"'))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    line = line_of(fbd, '"id": "blk_clamp"')
+    assert re.search(rf"FbdScale\.fbd:{line}:1: error: in FbdScale, node "
+                     r"'blk_clamp' \(localId \d+\): unknown block type 'Clamb'", err), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_compiler_error_in_a_translated_rung_points_at_the_node(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
+    ld.write_text(ld.read_text().replace('"name": "Stop"', '"name": "Stopp"'))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    # the undeclared variable is reported on the rung's line of generated ST, at the coil that writes it
+    line = line_of(ld, '"id": "coil_running"')
+    assert re.search(rf"LdCounter\.ld:{line}:1: error: in LdCounter, rung 2, "
+                     r"node 'coil_running' \(localId \d+\): .*Stopp", err), err
+    assert "nothing written" in err and not (tmp_path / "out").exists()
+
+
+def test_a_compiler_error_in_an_st_pou_keeps_its_line_and_column(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    st = proj / "pous" / "functions" / "Clamp.st"
+    st.write_text(st.read_text().replace("Clamp := Hi;", "Clamp := Hii;"))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    assert re.search(rf"Clamp\.st:{line_of(st, 'Hii')}:12: error: in Clamp: .*Hii", err), err
+
+
+@pytest.mark.parametrize("mutation, message", [
+    (("pous/function-blocks/FbdScale.fbd", '"type": "block"', '"type": "blockk"'), "unknown FBD node type 'blockk'"),
+    (("pous/function-blocks/LdCounter.ld", '"variant": "negated"', '"variant": "inverted"'),
+     "contact variant 'inverted'"),
+    (("pous/function-blocks/LdCounter.ld", "FUNCTION_BLOCK LdCounter", "PROGRAM LdCounter"),
+     "the header says PROGRAM, but the file is in the folder for FUNCTION_BLOCK POUs"),
+    (("pous/function-blocks/LdCounter.ld", "\nEND_FUNCTION_BLOCK", "\n"), "no END_FUNCTION_BLOCK at the end"),
+    (("pous/function-blocks/LdCounter.ld", '"rungs"', '"rung"'), 'an LD body is an object with a "rungs" list'),
+    (("project.json", '"triggering": "Cyclic"', '"triggering": "Interrupt"'),
+     "task MainTask: only Cyclic tasks can be imported"),
+    (("project.json", '"derivation": "enumerated"', '"derivation": "subrange"'), "derivation 'subrange'"),
+])
+def test_bad_input_is_a_positioned_error_and_nothing_is_written(tmp_path, capsys, mutation, message):
+    proj = project_copy(tmp_path)
+    rel, old, new = mutation
+    f = proj / rel
+    text = f.read_text()
+    assert old in text
+    f.write_text(text.replace(old, new, 1))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1, err
+    assert message in err, err
+    assert re.search(rf"{re.escape(f.name)}:\d+:\d+: error: ", err), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_il_and_sfc_free_languages_are_refused_by_file(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    (proj / "pous" / "programs" / "Old.il").write_text("PROGRAM Old\nVAR\nEND_VAR\nLD TRUE\nEND_PROGRAM\n")
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    assert "Old.il:1:1: error: in Old: IL POUs are not supported" in err, err
+
+
+def test_truncated_files_give_diagnostics_never_a_traceback(tmp_path, capsys):
+    """Every prefix of the LD file (in steps) is read without a crash: an error or a clean import."""
+    src = (FIXTURE / "pous" / "function-blocks" / "LdCounter.ld").read_text()
+    proj = project_copy(tmp_path)
+    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
+    outcomes = set()
+    for cut in range(0, len(src), max(1, len(src) // 60)):
+        ld.write_text(src[:cut])
+        code, err = run_import(proj, tmp_path / "out", capsys)
+        assert code == 1 and "error:" in err, err
+        outcomes.add(code)
+        assert not (tmp_path / "out").exists()
+    assert outcomes == {1}
