@@ -186,7 +186,7 @@ def test_a_rack_machine_generates_fixed_pockets_and_its_positions(tmp_path):
     st = (root / "st_src" / "app" / "generated" / "FB_MachineConfig.st").read_text()
     assert "FixedPockets := TRUE;" in st and "RackPlant.positions := 8;" in st
     assert "RackPlant.x[8] := 105000;" in st and "RackPlant.y[1] := 150000;" in st   # mm -> 1/1000 mm
-    assert "RackPlant.gripZ := -50000;" in st and "Rotary.homing := E_RotaryHoming#HomingNone;" in st
+    assert "RackPlant.gripZ := -50000;" in st and "Rotary.homing := HomingNone;" in st
     # no carousel lines; the tool-present sensor is the register map's ToolPresent channel, not a constant
     assert "Channels.home := -1;" in st and "Channels.pocket := -1;" in st
     tool_present = re.search(r'name = "ToolPresent"\ntable = "discrete_input"\naddress = (\d+)',

@@ -128,8 +128,8 @@ def test_select_maps_tools_to_shared_or_own_tables(corpus_st):
     select = corpus_st[corpus_st.index("FUNCTION F_SequenceSelect"):corpus_st.index("END_FUNCTION")]
     # Home 1, Length 2, Put tools 1 and 2 differ by their Q values (3, 4), tool 3 has its own file (5),
     # Get: one file without Q variables shared by tools 1..3 (6).
-    assert "E_SeqKind#KindHome:\n        F_SequenceSelect := 1;" in select
-    assert "E_SeqKind#KindLengthMeasurement:\n        F_SequenceSelect := 2;" in select
+    assert "KindHome:\n        F_SequenceSelect := 1;" in select
+    assert "KindLengthMeasurement:\n        F_SequenceSelect := 2;" in select
     put = select[select.index("KindPutTool"):select.index("KindGetTool")]
     assert re.findall(r"(\S+): F_SequenceSelect := (\d+);", put) == [("1", "3"), ("2", "4"), ("3", "5")]
     get = select[select.index("KindGetTool"):]
@@ -147,7 +147,7 @@ def test_steps_carry_fixed_point_values_times_and_source_lines(corpus_st):
     assert "stepData.a := 90500;" in get  # moveabs z 0 a 90.5: axisMask Z|A, z stays at its default 0
     assert "stepData.axisMask := 12;" in get
     assert "stepData.value := 12500;" in get  # SPINDLE CCW 12.5 rpm
-    assert "stepData.opcode := E_SeqOpcode#OpSpindleStop;" in get
+    assert "stepData.opcode := OpSpindleStop;" in get
 
 
 def test_message_texts_are_numbered_once_and_escaped(corpus_st):

@@ -82,9 +82,11 @@ def _pou_facts(pou: A.Pou, facts: StFacts) -> None:
         for labels, body in stmt.arms:
             values = [_int_value(s.value) for s in body if isinstance(s, A.Assign)]
             values = [v for v in values if v is not None]
-            for label in labels:
-                if isinstance(label.lo, A.EnumLit) and values:
-                    table[label.lo.value.upper()] = values[0]
+            for label in labels:        # E_Kind#Value or the bare Value (the form STruC++ takes too)
+                value = label.lo.value if isinstance(label.lo, A.EnumLit) else \
+                    label.lo.name if isinstance(label.lo, A.Name) else None
+                if value is not None and values:
+                    table[value.upper()] = values[0]
     if table:
         facts.cases[pou.name.upper()] = table
 

@@ -135,7 +135,7 @@ def _select(w: _Writer, assembly: Assembly) -> None:
     if present:
         w("CASE kind OF")
         for kind in present:
-            w(f"E_SeqKind#{kind.st_name}:", 1)
+            w(f"{kind.st_name}:", 1)
             if not kind.per_tool:
                 w(f"F_SequenceSelect := {assembly.select[(kind, 0)]};", 2)
                 continue
@@ -154,7 +154,7 @@ def _select(w: _Writer, assembly: Assembly) -> None:
 
 def _step_assignments(step: Step, messages: dict[str, int]) -> list[str]:
     """Only the fields that differ from the ST_SeqStep defaults."""
-    out = [f"stepData.opcode := E_SeqOpcode#{step.opcode.st_name};", f"stepData.line := {step.line};"]
+    out = [f"stepData.opcode := {step.opcode.st_name};", f"stepData.line := {step.line};"]
     if step.channel:
         out.append(f"stepData.channel := {step.channel};")
     if step.level:
