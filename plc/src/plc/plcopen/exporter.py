@@ -25,6 +25,7 @@ from ..diagnostics import Diagnostics, Pos
 from ..driver import UserError, collect_files, display_name, read_source
 from ..parser import parse
 from ..project import project_root
+from . import editor4xml
 from .datatypes import ELEMENTARY
 from .xmlfile import NS, XHTML, XmlError, children, parse_bytes, path
 
@@ -303,6 +304,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "PLCopen TC6 0201 XML project. Exit 0 written, 1 source errors, 2 usage.")
     o.add_argument("paths", nargs="*", metavar="PATH", help=".st files or directories (default: st_src/)")
     o.add_argument("--out", required=True, type=Path, metavar="FILE.xml", help="the file to write")
+    o.add_argument("--for", dest="reader", choices=["openplc-editor"], metavar="openplc-editor",
+                   help="shape the file for OpenPLC Editor v4's PLCopen import (one variable list of each kind "
+                        "per POU, CONSTANT/RETAIN dropped with a note, global variables at the configuration); "
+                        "exit 1 when it would still lose something (docs/openplc-editor.md)")
     o.add_argument("-q", "--quiet", action="store_true", help="print errors only")
     return p
 
@@ -327,6 +332,15 @@ def main(argv: list[str]) -> int:
     if data is None:
         print("plc export: nothing written", file=sys.stderr)
         return EXIT_FINDINGS
+    if args.reader == "openplc-editor":
+        data, notes, lost = editor4xml.for_editor(data)
+        for n in notes if not args.quiet else []:
+            print(f"plc export: note: {n.message}", file=sys.stderr)
+        for p in lost:
+            print(f"plc export: error: {args.out}:{p.line}: {p.message}", file=sys.stderr)
+        if lost:
+            print("plc export: nothing written (Editor v4 would lose what is listed above)", file=sys.stderr)
+            return EXIT_FINDINGS
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_bytes(data)
