@@ -75,6 +75,31 @@ def test_the_project_imports_checks_clean_for_openplc_and_passes_its_scan_tests(
     assert re.search(r"^4 passed, 0 failed$", r.stdout, re.M), r.stdout
 
 
+def test_without_its_configuration_the_project_joins_a_build_that_has_one(tmp_path, capsys):
+    """The integrator's case: ladder POUs from the editor beside an ST program with its own CONFIGURATION (which
+    declares the global variables the editor's POUs use)."""
+    out = tmp_path / "st" / "editor"
+    code, err = run_import_args(["openplc-editor", str(FIXTURE), "--out", str(out), "--no-configuration"], capsys)
+    assert code == 0, err
+    assert "Config0.st" not in {p.name for p in out.iterdir()} and (out / "LdCounter.st").exists()
+    (tmp_path / "st" / "Cell.st").write_text(
+        "PROGRAM Cell\nVAR\n  counter : LdCounter;\n  mode : OpMode;\nEND_VAR\n"
+        "counter(Pulse := TRUE, Preset := 3, Start := TRUE);\nIF counter.Done THEN mode := Finished; END_IF;\n"
+        "END_PROGRAM\n"
+        "CONFIGURATION Config0\n  VAR_GLOBAL\n    Mode : OpMode;\n    PulseIn : BOOL;\n  END_VAR\n"
+        "  RESOURCE Res0 ON PLC\n    TASK T(INTERVAL := T#10ms, PRIORITY := 0);\n"
+        "    PROGRAM CellInst WITH T : Cell;\n  END_RESOURCE\nEND_CONFIGURATION\n")
+    r = plc("check", "--target", "openplc", str(tmp_path / "st"))
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def run_import_args(argv: list[str], capsys) -> tuple[int, str]:
+    code = importer.main(argv)
+    cap = capsys.readouterr()
+    assert "Traceback" not in cap.err + cap.out
+    return code, cap.err
+
+
 def test_help_and_usage_errors(tmp_path, capsys):
     r = plc("import", "openplc-editor", "--help")
     assert r.returncode == 0 and "Exit 0 written, 1 project errors (nothing written), 2 usage" in " ".join(

@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "has errors. Exit 0 written, 1 project errors (nothing written), 2 usage.")
     e.add_argument("folder", type=Path, metavar="FOLDER", help="the project folder (holds project.json)")
     e.add_argument("--out", required=True, type=Path, metavar="DIR", help="directory for the .st files")
+    e.add_argument("--no-configuration", action="store_true",
+                   help="leave project.json's configuration out (types and POUs only), for a build whose "
+                        "CONFIGURATION is in ST")
     e.add_argument("-q", "--quiet", action="store_true", help="print errors only")
     return p
 
@@ -83,6 +86,8 @@ def import_editor_folder(args) -> int:
                 print(d.render(sources), file=sys.stderr)
         print("plc import: nothing written", file=sys.stderr)
         return EXIT_FINDINGS
+    if args.no_configuration:
+        units = [u for u in units if u.kind != "CONFIGURATION"]
     texts = editor4.unit_texts(units, "plc import openplc-editor")
     generated = {display_name(args.out / name): (name, text, table) for name, (text, table) in texts.items()}
     res = compile_sources([], generate=False, extra_texts=[(g, text) for g, (_n, text, _t) in generated.items()])
