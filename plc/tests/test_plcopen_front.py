@@ -422,3 +422,55 @@ def test_a_runtime_fault_in_an_fbd_block_names_the_xml_line(tmp_path):
     assert f'div.xml", {block_line},' in res.c_text        # the site table names the XML file and line
     run = run_c(res.c_text, 1)
     assert run.fault is not None and run.fault.line == block_line
+
+
+# ------------------------------------------------- every diagnostic names file, POU, element --
+def _bad_bodies():
+    """(what, body, POU kind, the localId the diagnostic must name, words it must hold)."""
+    lad = Body().left_rail(1)
+    yield "dangling wire", Body().left_rail(1).contact(2, "a", 99).coil(3, "q", 2), "functionBlock", 2, "99"
+    yield "missing block output", Body("FBD").in_var(1, "a").block(2, "NOT", {"IN": 1}, ["OUT"]) \
+        .out_var(3, "q", (2, "Q9")), "functionBlock", 3, "no such output"
+    yield "refLocalId not a number", Body().left_rail(1).contact(2, "a", "x1").coil(3, "q", 2), \
+        "functionBlock", 2, "not a number"
+    yield "duplicate localId", Body().left_rail(1).contact(2, "a", 1).coil(2, "q", 2), "functionBlock", 2, "twice"
+    yield "negated set coil", lad.contact(2, "a", 1).coil(3, "q", 2, negated=True, storage="set"), \
+        "functionBlock", 3, "negated set coil"
+    yield "edge in a FUNCTION", Body().left_rail(1).contact(2, "a", 1, edge="rising").coil(3, "q", 2), \
+        "function", 2, "memory"
+    yield "jump to a missing label", Body().left_rail(1).contact(2, "a", 1).jump(3, "Nowhere", 2), \
+        "functionBlock", 3, "Nowhere"
+    yield "continuation without connector", Body("FBD").continuation(1, "lost").out_var(2, "q", 1), \
+        "functionBlock", 1, "lost"
+    yield "function block without instance", Body("FBD").in_var(1, "a").block(2, "TON", {"IN": 1}, ["Q"]) \
+        .out_var(3, "q", (2, "Q")), "functionBlock", 2, "instanceName"
+    yield "untyped generic block", Body("FBD").in_var(1, "2 * 3").block(2, "MOVE", {"IN": 1}, ["OUT"]) \
+        .in_var(5, "4 + 4", y=40).block(3, "EQ", {"IN1": (2, "OUT"), "IN2": 5}, ["OUT"]).out_var(6, "q", (3, "OUT")) \
+        .block(4, "EQ", {"IN1": (2, "OUT"), "IN2": 5}, ["OUT"], y=80).out_var(7, "q", (4, "OUT"), y=80), \
+        "functionBlock", 2, "cannot tell the type"
+    yield "undeclared variable", Body().left_rail(1).contact(2, "nowhere", 1).coil(3, "q", 2), \
+        "functionBlock", 2, "nowhere"
+    yield "type mismatch at a block", Body("FBD").in_var(1, "a").block(2, "ADD", {"IN1": 1, "IN2": 1}, ["OUT"]) \
+        .out_var(3, "n", (2, "OUT")), "functionBlock", 2, "BOOL"
+    yield "power-flow loop", Body().left_rail(1).contact(2, "a", 3).contact(3, "a", 2).coil(4, "q", 3), \
+        "functionBlock", 3, "loop"
+
+
+@pytest.mark.parametrize("what,body,kind,local_id,words", list(_bad_bodies()), ids=lambda v: str(v)[:30])
+def test_every_import_diagnostic_names_file_pou_and_element(what, body, kind, local_id, words):
+    ret = "BOOL" if kind == "function" else None
+    text = project([pou("Pou_X", kind, body, inputs=[("a", "BOOL")], outputs=[("q", "BOOL"), ("n", "INT")]
+                        if kind != "function" else (), locals_=[("q", "BOOL")] if kind == "function" else (),
+                        ret=ret)])
+    diags = Diagnostics()
+    tr = translate("bad.xml", text.encode(), diags)
+    if tr is not None:
+        res = compile_sources([], extra_texts=[(tr.st_name, tr.text)], generate=False)
+        tr.remap(res.diags)
+        diags = res.diags
+    errors = [d.render() for d in diags.items if d.severity == "error"]
+    assert errors, f"{what}: no error"
+    for e in errors:
+        assert e.startswith("bad.xml:") and ": in Pou_X, element localId " in e, f"{what}: {e}"
+    assert any(f"element localId {local_id}:" in e and words.lower() in e.lower() for e in errors), \
+        f"{what}: {errors}"

@@ -258,17 +258,27 @@ def two_rungs(order_top=None, order_bottom=None) -> Body:
         .right_rail(6, [3, 5])
 
 
-def test_without_execution_order_the_writer_rung_runs_first():
+def test_without_execution_order_rungs_run_top_to_bottom_as_drawn():
+    # as Beremiz orders them: the top rung reads `mid` before the rung below writes it (one scan later)
     out, _ = scan(two_rungs(), {"a": [True, False, False]}, ["q"], locals_=[("mid", "BOOL")])
-    assert out["q"] == [True, False, False]
-    KINDS_COVERED.add("rung order data flow")
+    assert out["q"] == [False, True, False]
+    KINDS_COVERED.add("rung order as drawn")
 
 
 def test_execution_order_id_is_honoured():
-    out, _ = scan(two_rungs(order_top=1, order_bottom=2), {"a": [True, False, False]}, ["q"],
+    out, _ = scan(two_rungs(order_top=2, order_bottom=1), {"a": [True, False, False]}, ["q"],
                   locals_=[("mid", "BOOL")])
-    assert out["q"] == [False, True, False]      # the top rung runs first: one scan later
+    assert out["q"] == [True, False, False]      # the bottom rung runs first: the same scan
     KINDS_COVERED.add("rung order executionOrderId")
+
+
+def test_the_one_shot_idiom_pulses_for_one_scan():
+    # rung 1: a AND NOT aPrev -> pulse; rung 2: a -> aPrev.  Drawn in that order it pulses once per rising
+    # edge of a (a data-flow order would run rung 2 first and never pulse)
+    b = Body().left_rail(1, points=2).contact(2, "a", 1).contact(3, "aPrev", 2, x=150, negated=True) \
+        .coil(4, "pulse", 3).contact(5, "a", 1, y=40).coil(6, "aPrev", 5, y=40).right_rail(7, [4, 6])
+    out, _ = scan(b, {"a": [False, True, True, False, True]}, ["pulse"], locals_=[("aPrev", "BOOL")])
+    assert out["pulse"] == [False, True, False, False, True]
 
 
 def test_independent_rungs_run_top_to_bottom_whatever_the_file_order():

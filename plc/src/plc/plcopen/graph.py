@@ -76,7 +76,7 @@ def _pos(el) -> tuple[float, float]:
         return 0.0, 0.0
 
 
-def _refs(point, line: int) -> list[Ref]:
+def _refs(point, line: int, owner: int | None = None) -> list[Ref]:
     out = []
     if point is None:
         return out
@@ -85,7 +85,8 @@ def _refs(point, line: int) -> list[Ref]:
         try:
             src = int(ref)
         except (TypeError, ValueError):
-            raise GraphError(f"connection with refLocalId={ref!r} (not a number)", line_of(c) or line) from None
+            raise GraphError(f"connection with refLocalId={ref!r} (not a number)", line_of(c) or line,
+                             owner) from None
         out.append(Ref(src, (c.get("formalParameter") or "").upper(), line_of(c) or line))
     return out
 
@@ -97,11 +98,12 @@ def read_elements(body) -> list[Element]:
     for el in children(body):
         kind = local(el)
         line = line_of(el)
-        if kind in SFC_ELEMENTS:
-            raise GraphError(f"<{kind}> is an SFC element: SFC is not supported", line)
-        if kind not in SUPPORTED:
-            raise GraphError(f"<{kind}> is not supported in an LD/FBD body", line)
         raw_id = el.get("localId")
+        named = int(raw_id) if (raw_id or "").strip().isdigit() else None
+        if kind in SFC_ELEMENTS:
+            raise GraphError(f"<{kind}> is an SFC element: SFC is not supported", line, named)
+        if kind not in SUPPORTED:
+            raise GraphError(f"<{kind}> is not supported in an LD/FBD body", line, named)
         try:
             lid = int(raw_id)
         except (TypeError, ValueError):
@@ -127,7 +129,7 @@ def _fill(e: Element, el) -> None:
         e.negated = flag(el, "negated")
         e.edge = (el.get("edge") or "none").strip().lower()
         e.storage = (el.get("storage") or "none").strip().lower()
-        e.inputs[""] = Pin("", _refs(child(el, "connectionPointIn"), e.line))
+        e.inputs[""] = Pin("", _refs(child(el, "connectionPointIn"), e.line, e.id))
         e.outputs[""] = Pin("")
         if not e.text:
             raise GraphError(f"{kind} without a variable", e.line, e.id)
@@ -139,7 +141,7 @@ def _fill(e: Element, el) -> None:
         e.outputs[""] = Pin("")
     elif kind in ("rightPowerRail", "outVariable", "connector", "jump", "return"):
         points = children(el, "connectionPointIn")
-        refs = [r for p in points for r in _refs(p, e.line)]
+        refs = [r for p in points for r in _refs(p, e.line, e.id)]
         e.inputs[""] = Pin("", refs)
         if kind == "outVariable":
             e.text = text_of(child(el, "expression")).strip()
@@ -156,7 +158,7 @@ def _fill(e: Element, el) -> None:
     elif kind == "inOutVariable":
         e.text = text_of(child(el, "expression")).strip()
         e.negated = flag(el, "negatedOut")
-        e.inputs[""] = Pin("", _refs(child(el, "connectionPointIn"), e.line), negated=flag(el, "negatedIn"))
+        e.inputs[""] = Pin("", _refs(child(el, "connectionPointIn"), e.line, e.id), negated=flag(el, "negatedIn"))
         e.outputs[""] = Pin("")
     elif kind == "continuation":
         e.text = (el.get("name") or "").strip()
@@ -174,13 +176,13 @@ def _fill(e: Element, el) -> None:
                           "variable"):
             name = (v.get("formalParameter") or "").strip()
             e.pin_text[name.upper()] = name
-            e.inputs[name.upper()] = Pin(name.upper(), _refs(child(v, "connectionPointIn"), line_of(v)),
+            e.inputs[name.upper()] = Pin(name.upper(), _refs(child(v, "connectionPointIn"), line_of(v), e.id),
                                          flag(v, "negated"), (v.get("edge") or "none").lower())
         inouts = child(el, "inOutVariables")
         for v in children(inouts, "variable") if inouts is not None else []:
             name = (v.get("formalParameter") or "").strip()
             e.pin_text[name.upper()] = name
-            e.inputs[name.upper()] = Pin(name.upper(), _refs(child(v, "connectionPointIn"), line_of(v)))
+            e.inputs[name.upper()] = Pin(name.upper(), _refs(child(v, "connectionPointIn"), line_of(v), e.id))
             e.outputs[name.upper()] = Pin(name.upper())
             e.inouts.append(name.upper())
         outs = child(el, "outputVariables")

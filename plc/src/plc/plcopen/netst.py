@@ -17,19 +17,17 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from .graph import RAILS, Element, GraphError, check_refs, networks, read_elements
-from .order import comments_by_network, order_networks, topo
+from .order import OUTPUTS, comments_by_network, order_networks
 from .stexpr import AND_P, ATOM, FALSE, NOT_P, OR_P, SIMPLE, TRUE, Ex, Line, and_, cat, expr_of, join, not_, or_, tag
+from .wiretypes import WireTypes
 
 CONVERSION = re.compile(r"^(\w+)_TO_(\w+)$", re.I)
 # standard functions that are operators in ST (they cannot be called by name), with their precedence
 OPERATORS = {"AND": AND_P, "OR": OR_P, "XOR": 4, "NOT": NOT_P, "MOD": 7}
-# the result type of a standard function, by its kind in plc/src/plc/stdfuncs.py: a fixed type ...
+# the result type of a standard function of a fixed type, by its kind in plc/src/plc/stdfuncs.py (the others
+# take the type of their generic inputs: wiretypes.SAME_AS_OUT)
 STD_RESULT_TYPE = {"compare": "BOOL", "len": "INT", "find": "INT", "strint": "STRING", "mid": "STRING",
                    "concat": "STRING", "insert": "STRING", "delete": "STRING", "replace": "STRING", "trunc": "DINT"}
-# ... or the type of an input pin (of any other typed input when that one cannot be told)
-STD_RESULT_PIN = {"num1": "IN", "real1": "IN", "arith": "IN1", "expt": "IN1", "move": "IN", "minmax": "IN1",
-                  "limit": "IN", "sel": "IN0", "mux": "IN0", "shift": "IN", "logic": "IN1", "not": "IN"}
-SELECTORS = ("EN", "G", "K")
 
 
 @dataclass
@@ -74,7 +72,6 @@ class Translator:
         self.connectors = {e.text.upper(): e for e in elems if e.kind == "connector"}
         self.labels = {e.text.upper(): e.text for e in elems if e.kind == "label"}
         self.cyclic: set[int] = set()
-        self.typing: set[int] = set()
 
     # ------------------------------------------------------------------ naming --
     def fresh(self, base: str, type_text: str, comment: str, key: tuple) -> str:
@@ -143,7 +140,8 @@ class Translator:
         if e.kind == "block":
             t = self.output_type(e, pin)
             return self.fresh(f"{(pin or 'out').lower()}{eid}", t, f"output {pin} of {e.type_name} {eid}", key)
-        t = "BOOL" if e.kind in ("contact", "leftPowerRail") or e.negated else self.expr_type(e.text)
+        t = "BOOL" if e.kind in ("contact", "leftPowerRail") or e.negated else \
+            self.expr_type(e.text) or self.wires.type_of(("o", eid, ""))
         if t is None:
             raise GraphError(f"cannot tell the type of '{e.text}' ({e.kind} {eid}), read by several elements",
                              e.line, eid)
@@ -281,58 +279,27 @@ class Translator:
         return self.temp_for(("o", e.id, pin))
 
     def output_type(self, e: Element, pin: str) -> str:
-        self.typing.add(e.id)
-        try:
-            return self._output_type(e, pin)
-        finally:
-            self.typing.discard(e.id)
-
-    def _output_type(self, e: Element, pin: str) -> str:
-        s = self.sig(e)
+        """The type of a block output, from whatever typed reaches its wires (wiretypes.py)."""
         if pin == "ENO":
             return "BOOL"
-        if s.kind == "FUNCTION" and pin == "OUT" and s.ret:
-            return s.ret
-        if pin in s.outputs and s.outputs[pin]:
-            return s.outputs[pin]
-        if s.kind == "STD":
-            if s.std_kind in STD_RESULT_TYPE:
-                return STD_RESULT_TYPE[s.std_kind]
-            first = STD_RESULT_PIN.get(s.std_kind, "")
-            for cand in [first, *[p for p in e.inputs if p not in SELECTORS]]:
-                if cand in e.inputs:
-                    t = self.input_type(e, cand)
-                    if t:
-                        return t
-        raise GraphError(f"cannot tell the type of output {pin} of {e.type_name} ({e.id}): give one of its "
-                         "inputs a declared variable or a typed literal (INT#5)", e.line, e.id)
-
-    def input_type(self, e: Element, pin: str) -> str | None:
-        refs = e.inputs[pin].refs
-        if len(refs) != 1:
-            return "BOOL" if refs else None
-        src = self.by_id[refs[0].source]
-        if src.kind in ("contact", "leftPowerRail", "coil"):
-            return "BOOL"
-        if src.kind in ("inVariable", "inOutVariable"):
-            return "BOOL" if src.negated else self.expr_type(src.text)
-        if src.kind == "block":
-            if src.id in self.typing:
-                return None          # feedback: the type comes from another input
-            self.typing.add(src.id)
-            try:
-                return self.output_type(src, refs[0].pin)
-            except GraphError:
-                return None
-            finally:
-                self.typing.discard(src.id)
-        return None
+        t = self.wires.type_of(("o", e.id, pin))
+        if t:
+            return t
+        raise GraphError(f"cannot tell the type of output {pin} of {e.type_name} ({e.id}): nothing typed is wired "
+                         "to it, upstream or downstream; give one of its inputs or the variable it feeds a "
+                         "declared type, or use a typed literal (INT#5)", e.line, e.id)
 
     def expr_type(self, text: str) -> str | None:
         t = text.strip()
         up = t.upper()
         if up in self.ctx.var_types:
             return self.ctx.var_types[up]
+        m = re.match(r"^([A-Za-z_]\w*)\s*\.\s*([A-Za-z_]\w*)$", t)
+        if m:                            # a pin of a function block instance: timer.ET
+            s = self.ctx.sigs.get(self.ctx.var_types.get(m.group(1).upper(), "").upper())
+            pin = m.group(2).upper()
+            if s is not None and s.kind == "FUNCTION_BLOCK":
+                return s.outputs.get(pin) or s.inputs.get(pin) or None
         if up in ("TRUE", "FALSE"):
             return "BOOL"
         m = re.match(r"^([A-Za-z_]+)#", t)
@@ -439,7 +406,12 @@ class Translator:
             if e.kind == "inOutVariable" and e.inputs[""].negated:
                 flow = not_(flow)
             val = not_(flow) if e.kind == "outVariable" and e.negated else flow
-            out.append(Line.of(e.id, tag(Ex(e.text), e.id), " := ", val, ";"))
+            blk = self.eno_guard(e)
+            if blk is None:
+                out.append(Line.of(e.id, tag(Ex(e.text), e.id), " := ", val, ";"))
+            else:
+                out.append(Line.of(e.id, f"IF {self.temp_name(blk, 'ENO')} THEN ", tag(Ex(e.text), e.id), " := ",
+                                   val, "; END_IF;"))
         elif e.kind == "jump":
             out.append(Line.of(e.id, f"{self.jump_flag(e.text)} := ", flow, ";"))
         elif e.kind == "return":
@@ -447,6 +419,18 @@ class Translator:
                 out.append(Line("RETURN;", e.id))
             else:
                 out.append(Line.of(e.id, "IF ", flow, " THEN RETURN; END_IF;"))
+
+    def eno_guard(self, e: Element) -> Element | None:
+        """The block whose ENO guards the write of an output or in-out variable: one wired straight from an
+        output of a block with EN connected (Beremiz writes the variable only when the block ran, so it keeps
+        its value while EN is FALSE)."""
+        refs = e.inputs[""].refs
+        if len(refs) != 1 or refs[0].pin == "ENO":
+            return None
+        src = self.by_id[refs[0].source]
+        if src.kind == "block" and "EN" in src.inputs and src.inputs["EN"].refs and refs[0].pin not in src.inouts:
+            return src
+        return None
 
     def coil(self, e: Element, flow: Ex, out: list[Line]) -> None:
         if e.negated and e.storage != "none":
@@ -468,33 +452,36 @@ class Translator:
                           ("jump", label.upper()))
 
     # --------------------------------------------------------------- ordering --
-    def upstream_actions(self, e: Element) -> set[int]:
-        """Actions whose outputs reach e's inputs through pure elements."""
-        found: set[int] = set()
-        stack = [r.source for p in e.inputs.values() for r in p.refs]
+    def upstream_actions(self, e: Element) -> list[Element]:
+        """The actions whose outputs reach e's inputs through pure elements (contacts, variables, functions
+        written inline, connector/continuation pairs), in pin order, depth first."""
+        found: dict[int, Element] = {}
         seen: set[int] = set()
-        while stack:
-            i = stack.pop()
-            if i in seen:
-                continue
-            seen.add(i)
-            src = self.by_id[i]
-            if src.kind in RAILS:
-                continue
-            if self.is_action(src):
-                found.add(i)
-                if src.kind != "coil":
-                    continue
-            if src.kind == "continuation":
-                conn = self.connectors.get(src.text.upper())
-                if conn is not None:
-                    stack.append(conn.id)
-            stack.extend(r.source for p in src.inputs.values() for r in p.refs)
-        return found
+
+        def walk(eid: int) -> None:
+            for p in self.by_id[eid].inputs.values():
+                for r in p.refs:
+                    src = self.by_id[r.source]
+                    if src.id in seen or src.kind in RAILS:
+                        continue
+                    seen.add(src.id)
+                    if self.is_action(src):
+                        found.setdefault(src.id, src)
+                    elif src.kind == "continuation":
+                        conn = self.connectors.get(src.text.upper())
+                        if conn is not None and conn.id not in seen:
+                            seen.add(conn.id)
+                            walk(conn.id)
+                    else:
+                        walk(src.id)
+
+        walk(e.id)
+        return list(found.values())
 
     def blocks_in_cycles(self) -> set[int]:
-        """Blocks whose output comes back to one of their inputs (feedback): they run as statements, and
-        the wire that closes the loop reads the previous scan's value."""
+        """Blocks whose output comes back to one of their inputs by wires (feedback with no variable on the
+        loop): they run as statements, and the wire that closes the loop reads the value of the previous scan.
+        An in-out variable on the loop breaks it: the block reads the variable."""
         found = set()
         for e in self.elems:
             if e.kind != "block":
@@ -510,28 +497,59 @@ class Translator:
                     continue
                 seen.add(i)
                 src = self.by_id[i]
+                if src.kind == "inOutVariable":
+                    continue
                 if src.kind == "continuation" and src.text.upper() in self.connectors:
                     stack.append(self.connectors[src.text.upper()].id)
                 stack.extend(r.source for p in src.inputs.values() for r in p.refs)
         return found
 
     def action_order(self, net: list[Element]) -> list[Element]:
+        """The actions of a network in the order Beremiz's generator runs them: those with an
+        executionOrderId first, in that order; then the outputs (coils, output and in-out variables) as drawn,
+        top to bottom then left to right, each after the actions it reads (depth first, in pin order); then
+        the blocks left over, as drawn; jump and return last.  An action met again while its own inputs are
+        being evaluated (a feedback loop) is not waited for: the loop reads its value of the previous scan,
+        or, for an in-out variable, the variable."""
         acts = [e for e in net if self.is_action(e)]
         late = {"jump": 1, "return": 1}
-        if acts and all(a.order > 0 for a in acts):
-            return sorted(acts, key=lambda a: (late.get(a.kind, 0), a.order, a.id))
-        deps = {a.id: self.upstream_actions(a) & {b.id for b in acts} - {a.id} for a in acts}
-        return topo(acts, deps, lambda a: (late.get(a.kind, 0), a.key()))
+        numbered = sorted((a for a in acts if a.order > 0), key=lambda a: (late.get(a.kind, 0), a.order, a.id))
+        rest = sorted((a for a in acts if a.order <= 0),
+                      key=lambda a: (late.get(a.kind, 0), a.kind not in OUTPUTS, a.key()))
+        out: list[Element] = []
+        done: set[int] = {a.id for a in numbered}
+        visiting: set[int] = set()
+
+        def visit(a: Element) -> None:
+            if a.id in done or a.id in visiting:
+                return
+            visiting.add(a.id)
+            for u in self.upstream_actions(a):
+                if u.network == a.network:
+                    visit(u)
+            visiting.discard(a.id)
+            done.add(a.id)
+            out.append(a)
+
+        for a in rest:
+            visit(a)
+        head = [a for a in numbered if a.kind not in late]
+        return head + [a for a in out if a.kind not in late] + [a for a in numbered if a.kind in late] + \
+            [a for a in out if a.kind in late]
 
     # -------------------------------------------------------------- translate --
     def run(self) -> BodyST:
         check_refs(self.elems)
+        self.wires = WireTypes(self.elems, self.connectors, self.sig, self.expr_type, STD_RESULT_TYPE)
         self.warnings: list[tuple[str, Element]] = []
         self.reads = Counter()
         for e in self.elems:
             for p in e.inputs.values():
                 for r in p.refs:
                     self.reads[(r.source, r.pin)] += 1
+        for e in self.elems:
+            if e.kind in ("outVariable", "inOutVariable") and self.eno_guard(e) is not None:
+                self.reads[(self.eno_guard(e).id, "ENO")] += 1
         self.cyclic = self.blocks_in_cycles()
         nets = networks(self.elems)
         ordered = order_networks(self.elems, nets)

@@ -16,7 +16,8 @@ from ..resources import STANDARD_FBS
 from ..stdfuncs import STD_FUNCS
 from .datatypes import TypeError_, initial_value, type_text
 from .graph import GraphError
-from .netst import STD_RESULT_PIN, STD_RESULT_TYPE, Context, Sig, translate_body
+from .netst import STD_RESULT_TYPE, Context, Sig, translate_body
+from .wiretypes import SAME_AS_OUT
 from .xmlfile import child, children, flag, line_of, local, path, text_of, text_start
 
 POU_KINDS = {"function": "FUNCTION", "functionBlock": "FUNCTION_BLOCK", "program": "PROGRAM"}
@@ -90,7 +91,7 @@ def standard_fb_sigs() -> dict[str, Sig]:
 
 def standard_function_sigs() -> dict[str, Sig]:
     return {name: Sig("STD", std_kind=f.kind, inputs={p: "" for p in f.params}, outputs={"OUT": ""})
-            for name, f in STD_FUNCS.items() if f.kind in STD_RESULT_TYPE or f.kind in STD_RESULT_PIN}
+            for name, f in STD_FUNCS.items() if f.kind in STD_RESULT_TYPE or f.kind in SAME_AS_OUT}
 
 
 class ProjectReader:
