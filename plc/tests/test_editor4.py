@@ -346,3 +346,65 @@ def test_editor_v4_plcopen_import_reads_our_export(tmp_path):
     assert sorted(t["name"] for t in data["dataTypes"]) == sorted(view["types"])
     res = data["configurations"]["resource"]
     assert sorted(i["name"] for i in res["instances"]) == sorted(i[0] for i in view["instances"])
+    # every LD POU arrives with one rung per network of our translation
+    from plc.diagnostics import Diagnostics
+    from plc.plcopen import translate
+    tr = translate("editor.xml", xml.read_bytes(), Diagnostics())
+    ours = {u.name: u.networks for u in tr.units if u.language == "LD"}
+    theirs = {p["name"]: len(p["body"]["value"]["rungs"]) for p in data["pous"] if p["body"]["language"] == "ld"}
+    assert theirs == ours and ours
+    # the fixture project, imported and exported again: its globals and its task arrive too
+    st = tmp_path / "st"
+    assert plc("import", "openplc-editor", str(FIXTURE), "--out", str(st)).returncode == 0
+    r, xml = export(tmp_path, "fixture.xml", "--for", "openplc-editor", str(st))
+    assert r.returncode == 0, r.stderr
+    run = subprocess.run([*shlex.split(cmd), str(xml)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    res = json.loads(run.stdout)["projectData"]["configurations"]["resource"]
+    assert [v["name"] for v in res["globalVariables"]] == ["Mode", "PulseIn"]
+    assert [(t["name"], t["triggering"], t["interval"]) for t in res["tasks"]] == [("MainTask", "Cyclic", "T#20ms")]
+
+
+LD_TWO_RUNGS = """<?xml version="1.0" encoding="utf-8"?>
+<project xmlns="http://www.plcopen.org/xml/tc6_0201" xmlns:xhtml="http://www.w3.org/1999/xhtml">
+<fileHeader companyName="x" productName="x" productVersion="1" creationDateTime="2000-01-01T00:00:00"/>
+<contentHeader name="x"><coordinateInfo><fbd><scaling x="1" y="1"/></fbd><ld><scaling x="1" y="1"/></ld>
+<sfc><scaling x="1" y="1"/></sfc></coordinateInfo></contentHeader>
+<types><dataTypes/><pous><pou name="P" pouType="program"><interface><localVars>
+<variable name="A"><type><BOOL/></type></variable><variable name="B"><type><BOOL/></type></variable>
+<variable name="X"><type><BOOL/></type></variable><variable name="Y"><type><BOOL/></type></variable>
+</localVars></interface><body><LD>
+RAILS
+<contact localId="3"><position x="50" y="10"/><connectionPointIn><connection refLocalId="1"/></connectionPointIn>
+<connectionPointOut/><variable>A</variable></contact>
+<coil localId="4"><position x="150" y="10"/><connectionPointIn><connection refLocalId="3"/></connectionPointIn>
+<connectionPointOut/><variable>X</variable></coil>
+<contact localId="5"><position x="50" y="60"/><connectionPointIn><connection refLocalId="LEFT2"/></connectionPointIn>
+<connectionPointOut/><variable>B</variable></contact>
+<coil localId="6"><position x="150" y="60"/><connectionPointIn><connection refLocalId="5"/></connectionPointIn>
+<connectionPointOut/><variable>Y</variable></coil>
+</LD></body></pou></pous></types><instances><configurations/></instances></project>
+"""
+SHARED = """<leftPowerRail localId="1"><position x="0" y="0"/><connectionPointOut/></leftPowerRail>
+<rightPowerRail localId="2"><position x="200" y="0"/><connectionPointIn><connection refLocalId="4"/></connectionPointIn>
+<connectionPointIn><connection refLocalId="6"/></connectionPointIn></rightPowerRail>"""
+PAIRS = """<leftPowerRail localId="1"><position x="0" y="0"/><connectionPointOut/></leftPowerRail>
+<rightPowerRail localId="2"><position x="200" y="0"/><connectionPointIn><connection refLocalId="4"/></connectionPointIn>
+</rightPowerRail>
+<leftPowerRail localId="7"><position x="0" y="50"/><connectionPointOut/></leftPowerRail>
+<rightPowerRail localId="8"><position x="200" y="50"/>
+<connectionPointIn><connection refLocalId="6"/></connectionPointIn></rightPowerRail>"""
+
+
+def test_ld_rungs_sharing_a_rail_are_flagged_one_rail_pair_per_rung_is_not():
+    """Editor v4 makes a rung of each group of wired elements, rails included, and reads one connectionPointIn
+    per element: two rungs on one rail pair arrive as one rung without its right rail."""
+    from plc.plcopen.editor4xml import problems
+    from plc.plcopen.xmlfile import parse_bytes
+    shared = [p.message for p in problems(parse_bytes(
+        LD_TWO_RUNGS.replace("RAILS", SHARED).replace("LEFT2", "1").encode()))]
+    assert "POU P: rightPowerRail 2 has 2 connectionPointIn: Editor v4 reads the wires of none of them (draw one " \
+           "rail pair per rung)" in shared
+    assert "POU P: Editor v4 shows its 2 networks as 1 rung(s): they share a power rail (draw one rail pair per " \
+           "rung)" in shared
+    assert problems(parse_bytes(LD_TWO_RUNGS.replace("RAILS", PAIRS).replace("LEFT2", "7").encode())) == []

@@ -113,6 +113,7 @@ def problems(root) -> list[Problem]:
             if lost:
                 out.append(Problem(f"POU {name}: LD elements Editor v4 does not read: {', '.join(lost)}",
                                    line_of(lang)))
+            out += ld_rung_problems(name, lang)
     confs = children(child_of(child_of(root, "instances"), "configurations")) \
         if child_of(root, "instances") is not None and child_of(child_of(root, "instances"), "configurations") \
         is not None else []
@@ -139,6 +140,52 @@ def problems(root) -> list[Problem]:
                 if not t.get("interval"):
                     out.append(Problem(f"task {t.get('name')}: without an interval Editor v4 makes it an Interrupt "
                                        "task with no trigger", line_of(t)))
+    return out
+
+
+def ld_rung_problems(pou: str, ld) -> list[Problem]:
+    """Editor v4 makes a rung of every group of elements joined by wires, power rails included, and reads
+    the wires of an element's single connectionPointIn: a rail shared by several networks merges them into
+    one rung, and a second connectionPointIn (a right rail with one per rung) loses its wires."""
+    out = []
+    elems = {el.get("localId"): el for el in children(ld) if local(el) in LD_READ - {"comment"}}
+    parent = {k: k for k in elems}
+
+    def find(k):
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    ours = {k: k for k in elems}           # our networks: rails join nothing (graph.networks)
+
+    def ours_find(k):
+        while ours[k] != k:
+            ours[k] = ours[ours[k]]
+            k = ours[k]
+        return k
+
+    for k, el in elems.items():
+        points = list(children(el, "connectionPointIn"))
+        for v in children(child_of(el, "inputVariables"), "variable") if child_of(el, "inputVariables") is not None \
+                else []:
+            points += children(v, "connectionPointIn")
+        if local(el) != "block" and len(points) > 1:
+            out.append(Problem(f"POU {pou}: {local(el)} {k} has {len(points)} connectionPointIn: Editor v4 reads "
+                               "the wires of none of them (draw one rail pair per rung)", line_of(el)))
+        for point in points:
+            for c in children(point, "connection"):
+                src = c.get("refLocalId")
+                if src in parent:
+                    parent[find(src)] = find(k)
+                    if "PowerRail" not in local(el) and "PowerRail" not in local(elems[src]):
+                        ours[ours_find(src)] = ours_find(k)
+    rails = {k for k, el in elems.items() if "PowerRail" in local(el)}
+    editor_rungs = {find(k) for k in elems if k not in rails}
+    networks = {ours_find(k) for k in elems if k not in rails}
+    if len(editor_rungs) < len(networks):
+        out.append(Problem(f"POU {pou}: Editor v4 shows its {len(networks)} networks as {len(editor_rungs)} rung(s): "
+                           "they share a power rail (draw one rail pair per rung)", line_of(ld)))
     return out
 
 
