@@ -77,19 +77,20 @@ OUT := Cnt;""", [("_TMP_ADD4_OUT", "INT"), ("_TMP_SEL7_OUT", "INT")])
 COUNTER_ST = ("Cnt := SEL(Reset, Cnt + 1, ResetValue);\nOUT := Cnt;", [])
 
 
-def counter_fbd(in_out_on_loop: bool) -> Body:
-    """ADD(1, Cnt) -> SEL(G := Reset, IN0 := the ADD, IN1 := ResetValue) -> Cnt; then OUT := Cnt."""
+def counter_fbd(in_out_on_loop: bool, sel_y: float = 0) -> Body:
+    """ADD(1, Cnt) -> SEL(G := Reset, IN0 := the ADD, IN1 := ResetValue) -> Cnt; then OUT := Cnt (the SEL and
+    the variable drawn sel_y lower than the ADD)."""
     b = Body("FBD").in_var(1, "1", y=0)
     if in_out_on_loop:
         b.block(4, "ADD", {"IN1": 1, "IN2": 8}, ["OUT"], x=100)
     else:
         b.in_var(2, "Cnt", y=30).block(4, "ADD", {"IN1": 1, "IN2": 2}, ["OUT"], x=100)
     b.in_var(5, "Reset", y=-30).in_var(6, "ResetValue", y=60) \
-        .block(7, "SEL", {"G": 5, "IN0": (4, "OUT"), "IN1": 6}, ["OUT"], x=250)
+        .block(7, "SEL", {"G": 5, "IN0": (4, "OUT"), "IN1": 6}, ["OUT"], x=250, y=sel_y)
     if in_out_on_loop:
-        b.in_out_var(8, "Cnt", (7, "OUT"), x=400)
+        b.in_out_var(8, "Cnt", (7, "OUT"), x=400, y=sel_y)
     else:
-        b.out_var(8, "Cnt", (7, "OUT"), x=400)
+        b.out_var(8, "Cnt", (7, "OUT"), x=400, y=sel_y)
     return b.in_var(9, "Cnt", y=200).out_var(10, "OUT", 9, y=200)
 
 
@@ -101,10 +102,13 @@ def test_fbd_feedback_counter_through_its_variable_counts_from_the_first_scan():
 
 
 def test_fbd_feedback_counter_with_the_in_out_variable_on_the_loop():
-    # the loop ADD -> SEL -> in-out variable Cnt -> ADD is broken at the variable: ADD reads Cnt
-    agree("feedback counter, FBD, in-out variable on the loop", counter_fbd(True),
-          {"Twin": COUNTER_BEREMIZ, "PlainSt": COUNTER_ST}, COUNTER_INPUTS, [("OUT", "INT")],
-          {"OUT": [1, 2, 3, 10, 11, 12]}, locals_=[("Cnt", "INT")])
+    # the loop ADD -> SEL -> in-out variable Cnt -> ADD is broken at the variable: ADD reads Cnt, wherever
+    # the blocks are drawn (with the SEL above the ADD a cycle broken by position ran the SEL first and read
+    # the ADD's output of the previous scan: one count behind)
+    for sel_y in (0, -100):
+        agree("feedback counter, FBD, in-out variable on the loop", counter_fbd(True, sel_y),
+              {"Twin": COUNTER_BEREMIZ, "PlainSt": COUNTER_ST}, COUNTER_INPUTS, [("OUT", "INT")],
+              {"OUT": [1, 2, 3, 10, 11, 12]}, locals_=[("Cnt", "INT")])
 
 
 def test_ld_feedback_counter_agrees_with_its_st_twin():
