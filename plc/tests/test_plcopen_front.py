@@ -474,3 +474,15 @@ def test_every_import_diagnostic_names_file_pou_and_element(what, body, kind, lo
         assert e.startswith("bad.xml:") and ": in Pou_X, element localId " in e, f"{what}: {e}"
     assert any(f"element localId {local_id}:" in e and words.lower() in e.lower() for e in errors), \
         f"{what}: {errors}"
+
+
+def test_a_declaration_diagnostic_names_the_variable():
+    b = Body().left_rail(1).contact(2, "a", 1).coil(3, "q", 2)
+    text = project([pou("Pou_V", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")],
+                        locals_=[("lamp", "NO_SUCH_TYPE")])])
+    tr = translate("decl.xml", text.encode(), Diagnostics())
+    res = compile_sources([], extra_texts=[(tr.st_name, tr.text)], generate=False)
+    tr.remap(res.diags)
+    line = line_of(text, '<variable name="lamp">')
+    assert any(d.render().startswith(f"decl.xml:{line}:1: error: in Pou_V, variable lamp: ") and "NO_SUCH_TYPE" in
+               d.render() for d in res.diags.items), [d.render() for d in res.diags.items]

@@ -73,7 +73,7 @@ class Translation:
         if o.exact:
             return Pos(self.xml_name, o.line, pos.col + o.col_shift), prefix(o.pou, o.local_id)
         local_id, line = o.element_at(pos.col)
-        return Pos(self.xml_name, line, 1), prefix(o.pou, local_id)
+        return Pos(self.xml_name, line, 1), prefix(o.pou, local_id, o.variable)
 
     def remap(self, diags: Diagnostics) -> None:
         """Diagnostics on the generated ST: XML file, line (and column for ST bodies), POU and localId."""
@@ -105,12 +105,15 @@ class Translation:
                 self._move(value, seen)
 
 
-def prefix(pou: str, local_id: int | None) -> str:
+def prefix(pou: str, local_id: int | None, variable: str = "") -> str:
+    """'in POU, element localId N: ' (or 'variable V' for a declaration line) before a message."""
     if not pou:
         return ""
-    if local_id is None:
-        return f"in {pou}: "
-    return f"in {pou}, element localId {local_id}: "
+    if local_id is not None:
+        return f"in {pou}, element localId {local_id}: "
+    if variable:
+        return f"in {pou}, variable {variable}: "
+    return f"in {pou}: "
 
 
 def translate(name: str, data: bytes, diags: Diagnostics) -> Translation | None:

@@ -35,6 +35,7 @@ class Origin:
     local_id: int | None = None
     exact: bool = False       # the ST text is the XML text (an ST body): columns map one to one
     spans: tuple = ()         # (first col, end col, localId, XML line) of the parts other elements wrote
+    variable: str = ""        # the interface or global variable a declaration line declares
 
     def element_at(self, col: int) -> tuple[int | None, int]:
         """localId and XML line of the innermost element whose text covers 1-based column col."""
@@ -283,7 +284,7 @@ class ProjectReader:
                 doc = text_of(child(v, "documentation")).strip()
                 text = f"    {vname}" + (f" AT {addr}" if addr else "") + f" : {ttext}" + \
                     (f" := {init}" if init else "") + ";" + (f" (* {comment(doc)} *)" if doc else "")
-                unit.add(text, Origin(line_of(v), pou=pou))
+                unit.add(text, Origin(line_of(v), pou=pou, variable=vname))
             unit.add("END_VAR", Origin(line_of(vl), pou=pou))
 
     def st_body(self, unit: Unit, body, pou: str) -> None:
