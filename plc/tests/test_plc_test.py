@@ -295,6 +295,6 @@ def test_c_that_the_c_compiler_rejects_in_the_test_build_is_an_internal_error_ex
     assert "internal compiler error: the C compiler rejected the C generated" in proc.stderr
     assert "tests.c:9:1: error: the fake compiler refuses this" in proc.stderr
     assert "bug of the compiler, not of your program" in proc.stderr and "Traceback" not in proc.stderr
-    (log,) = (tmp_path / "build").glob("*/tests.cc.log")
-    assert log.read_text().startswith(f"$ {fake_cc} ") and (log.parent / "tests.c").exists()
-    assert not (log.parent / "tests").exists()
+    (log,) = (tmp_path / "build" / "c").glob("*.cc.log")       # the first unit refused, of one per source file
+    assert log.read_text().startswith(f"$ {fake_cc} ") and log.with_suffix("").with_suffix(".c").exists()
+    assert not list((tmp_path / "build").glob("*/tests"))

@@ -14,7 +14,7 @@ import time
 from importlib import import_module
 from pathlib import Path
 
-from . import __version__, extensions, retainfile, runtime, testrunner
+from . import __version__, buildcache, extensions, retainfile, runtime, testrunner
 from .diagnostics import InternalError
 from .driver import GeneratedCError, UserError, compile_c, compile_sources, print_diagnostics
 from .project import add_view_options, choose_view, project_root, refused_by_preflight, where
@@ -34,7 +34,13 @@ def cmd_check(args) -> int:
     return 1 if n_err else 0
 
 
+def use_project_cache(root: Path | None) -> None:
+    """Parse results and objects from the project's build cache (build/plc-cache/, shared by plc test)."""
+    buildcache.use(root / buildcache.CACHE_DIR if root is not None else None)
+
+
 def cmd_build(args) -> int:
+    use_project_cache(project_root())
     res = compile_sources(args.paths, portability=not args.no_portability, target=args.target)
     print_diagnostics(res, quiet=args.quiet)
     if not res.ok:
@@ -81,6 +87,7 @@ def cmd_run(args) -> int:
     if not paths:
         raise UserError("no ST sources given and no project st_src/ found from here")
     in_project = root is not None and all(_inside(p, root) for p in paths)
+    use_project_cache(root)
     if in_project and refused_by_preflight(root, "plc run"):
         return 1
     res = compile_sources(paths, portability=False)

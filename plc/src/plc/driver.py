@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import ast as A
-from . import plcopen, sema
+from . import buildcache, plcopen, sema
 from .codegen import generate as gen_c
 from .diagnostics import Diagnostics, SourceSet
 from .parser import parse
@@ -304,8 +304,28 @@ def run_c_compiler(cmd: list[str], c_file: Path) -> None:
 
 
 def compile_c(c_file: Path, out: Path) -> None:
-    """The object file `out` of the generated `c_file` (plc build)."""
-    run_c_compiler([cc(), *CFLAGS, f"-I{INCLUDE}", "-c", str(c_file), "-o", str(out)], c_file)
+    """The object file `out` of the generated `c_file` (plc build), from the build cache in use when it holds
+    the object of this C text."""
+    cache = buildcache.active()
+    if cache is None:
+        run_c_compiler([cc(), *CFLAGS, f"-I{INCLUDE}", "-c", str(c_file), "-o", str(out)], c_file)
+        return
+    unit = buildcache.Unit(c_file.stem, c_file.read_text())
+    (obj,) = compile_units(cache, [unit], [*CFLAGS, f"-I{INCLUDE}"], [], c_file.parent)
+    shutil.copyfile(obj, out)
+
+
+def compile_units(cache: buildcache.Cache, units: list[buildcache.Unit], flags: list[str], headers: list[Path],
+                  src_dir: Path) -> list[Path]:
+    """buildcache.compile_units with the C compiler cc() and plc_rt.h and plc_abi.h among the headers; a unit
+    the C compiler refuses is a GeneratedCError, its output kept beside its C (`NAME.c` -> `NAME.cc.log`)."""
+    try:
+        return buildcache.compile_units(cache, units, cc(), flags,
+                                        [INCLUDE / "plc_rt.h", INCLUDE / "plc_abi.h", *headers], src_dir)
+    except buildcache.UnitError as e:
+        log = e.c_file.with_suffix(".cc.log")
+        log.write_text(f"$ {shlex.join(e.command)}\n{e.output}")
+        raise GeneratedCError(e.c_file, log, e.output) from None
 
 
 def content_hash(*parts: str | bytes) -> str:

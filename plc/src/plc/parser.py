@@ -12,6 +12,7 @@ parser always terminates.
 from __future__ import annotations
 
 from . import ast as A
+from . import buildcache
 from .diagnostics import Diagnostics, Pos
 from .facts import Fact, fact
 from .lexer import Token, tokenize
@@ -951,7 +952,16 @@ class Parser:
 
 
 def parse(text: str, filename: str, diags: Diagnostics) -> A.SourceFile:
-    """The file's AST; the portability facts of the lexer and the parser ride on its `facts`."""
+    """The file's AST; the portability facts of the lexer and the parser ride on its `facts`.  With a build
+    cache in use (buildcache.use), a file parsed before with the same name and text is loaded from it."""
+    cache = buildcache.active()
+    if cache is not None:
+        return cache.parsed(text, filename, diags, parse_text)
+    return parse_text(text, filename, diags)
+
+
+def parse_text(text: str, filename: str, diags: Diagnostics) -> A.SourceFile:
+    """The file's AST, parsed now."""
     facts: list[Fact] = []
     tokens = tokenize(text, filename, diags, facts)
     return Parser(tokens, filename, diags, facts).parse_file()

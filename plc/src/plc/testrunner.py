@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import os
+import shlex
 import subprocess
 import sys
 import time
@@ -20,9 +21,10 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import testcases
-from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, content_hash,
-                     print_diagnostics, run_c_compiler)
+from . import buildcache, testcases
+from .codegen import generate_units
+from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, compile_units, content_hash,
+                     print_diagnostics)
 from .project import add_view_options, project_root, refused_by_preflight
 from .resources import RUNTIME_SRC
 
@@ -65,30 +67,34 @@ def fmt_time(ns: int) -> str:
 
 
 def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, optimize: str = "-O1",
-                cases: testcases.CaseSet | None = None):
-    """Compile the sources, the tests and the cases of their tables into one runner binary (cached by content)."""
+                cases: testcases.CaseSet | None = None, cache: buildcache.Cache | None = None):
+    """Compile the sources, the tests and the cases of their tables into one runner binary.  The program's C is
+    one translation unit per source file (codegen.generate_units), each compiled only when its text is not in
+    the build cache (`cache`, default the one in use, else build_dir/cache); the runner is linked only when
+    an object changed."""
     cases = cases if cases is not None else testcases.load(paths)
     if cases.diags.has_errors():
         print_diagnostics(CompileResult(cases.diags, cases.sources), quiet=True)
         raise TestBuildError(len(cases.diags.errors))
-    res = compile_sources([*src, *paths], test_build=True, extra_texts=cases.extra_texts())
+    res = compile_sources([*src, *paths], test_build=True, extra_texts=cases.extra_texts(), generate=False)
     cases.remap(res.diags, res.sources)
     untabled(res, cases)
     print_diagnostics(res, quiet=True)   # errors only: warnings are `plc check`'s business
     if not res.ok:
         raise TestBuildError(len(res.diags.errors))
-    runner_c = STDLIB / "test_main.c"
-    key = content_hash(res.c_text, runner_c.read_bytes(), (INCLUDE / "plc_rt.h").read_bytes(),
-                       (INCLUDE / "plc_abi.h").read_bytes(), *(p.read_bytes() for p in SCAN_CORE), optimize)
-    out = build_dir / key
-    exe = out / "tests"
+    cache = cache or buildcache.active() or buildcache.Cache(build_dir / "cache")
+    units = [buildcache.Unit(name, text) for name, text in generate_units(res.program, test_build=True)]
+    units += [buildcache.Unit(f.stem, f.read_text()) for f in (STDLIB / "test_main.c", SCAN_CORE[0])]
+    flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}"]
+    # a unit the C compiler refuses is the compiler's bug: exit 3, the C and the output kept in build_dir/c
+    objects = compile_units(cache, units, flags, [SCAN_CORE[1]], build_dir / "c")
+    exe = build_dir / content_hash(*(o.name for o in objects)) / "tests"
     if not exe.exists():
-        out.mkdir(parents=True, exist_ok=True)
-        c_file = out / "tests.c"
-        c_file.write_text(res.c_text)
-        cmd = [cc(), "-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}",
-               str(c_file), str(runner_c), str(SCAN_CORE[0]), "-o", str(exe) + ".tmp", "-lm"]
-        run_c_compiler(cmd, c_file)     # a failure is the compiler's bug: exit 3, the C and the output kept
+        exe.parent.mkdir(parents=True, exist_ok=True)
+        link = [cc(), *map(str, objects), "-o", str(exe) + ".tmp", "-lm"]
+        proc = subprocess.run(link, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise UserError(f"linking the test runner failed ({shlex.join(link)}):\n{proc.stderr}{proc.stdout}")
         os.replace(str(exe) + ".tmp", exe)
     return res, exe
 
@@ -235,9 +241,11 @@ def cmd_test(args) -> int:
     if not paths:
         raise UserError("no test paths given and no project (st_src/ and iec_tests/) found from here")
     src = args.src if args.src is not None else ([str(root / "st_src")] if root else [])
+    build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
+    # the project's build cache (parse results, objects), shared with plc build and plc run; else the build dir's
+    buildcache.use(root / buildcache.CACHE_DIR if root is not None else build_dir / "cache")
     if root is not None and args.src is None and refused_by_preflight(root, "plc test"):
         return 2        # the project is not ready (stale generated files): no test ran, so no test count
-    build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
     t0 = time.perf_counter()
     try:
         cases = testcases.load(paths)
@@ -253,7 +261,9 @@ def cmd_test(args) -> int:
         pat = args.k.lower()
         selected = [i for i in selected if pat in tests[i].name.lower() or fnmatch.fnmatch(tests[i].name.lower(), pat)]
     if args.verbose:
-        print(f"built {sum(t.runnable for t in tests)} test(s) in {t_build:.2f}s -> {exe}")
+        compiled = len(buildcache.active().compiled)
+        print(f"built {sum(t.runnable for t in tests)} test(s) in {t_build:.2f}s ({compiled} C unit(s) compiled, "
+              f"the others from the cache) -> {exe}")
     sites = res.program.sites
 
     def on_result(r: TestResult) -> None:
@@ -326,6 +336,8 @@ def add_parser(sub) -> None:
                    help="library sources to compile with the tests (default: the project's st_src/)")
     p.add_argument("--timeout", type=int, default=DEFAULT_TIMEOUT_S, metavar="S",
                    help=f"wall-clock limit per test in seconds (default {DEFAULT_TIMEOUT_S})")
-    p.add_argument("--build-dir", metavar="DIR", help="where to cache the test binary (default: build/plc-test)")
+    p.add_argument("--build-dir", metavar="DIR", help="where to link the test binary (default: build/plc-test); "
+                   "parse results and C objects are cached in the project's build/plc-cache/ (outside a "
+                   "project: DIR/cache)")
     add_view_options(p)
     p.set_defaults(func=cmd_test)

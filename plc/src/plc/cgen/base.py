@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import re
+import zlib
+from contextlib import contextmanager
+from dataclasses import dataclass
 
 from .. import ast as A
 from ..passes.context import Program
@@ -24,7 +27,38 @@ def cid(name: str) -> str:
     return name + "_V" if C_RESERVED.match(name) else name
 
 
+# The units of a split build (codegen.Gen.units) besides one per source file.
+MAIN_UNIT = "<main>"        # configuration, its tables, the state every unit shares
+TESTS_UNIT = "<tests>"      # the table of tests (plc_tests)
+SITES_UNIT = "<sites>"      # the table of sites, each unit's site map
+TYPES_UNIT = "<types>"      # the initialisers of arrays and structures
+
+
+def unit_id(unit: str) -> str:
+    """A C identifier (and file name) for a unit: a source file's is stable across builds."""
+    if unit in (MAIN_UNIT, TESTS_UNIT, SITES_UNIT, TYPES_UNIT):
+        return unit.strip("<>")
+    stem = re.sub(r"[^A-Za-z0-9]+", "_", unit).strip("_")[-48:]
+    return f"u_{stem}_{zlib.crc32(unit.encode()):08x}"
+
+
+@dataclass
+class Piece:
+    """A run of the buffer's lines: a declaration (`defines` the C names it declares: a split build's units
+    take the declarations their text names), a definition in one translation unit (`unit`), or, with neither,
+    part of the preamble every unit starts with."""
+    start: int
+    end: int
+    defines: tuple[str, ...] = ()
+    unit: str | None = None
+
+
+PLAIN = re.compile(r'[ !#-\[\]-~]*')     # printable ASCII but '"' and '\\': written as it is
+
+
 def c_string(s: str) -> str:
+    if PLAIN.fullmatch(s):
+        return f'"{s}"'
     out = []
     for ch in s.encode("latin-1", "replace"):
         c = chr(ch)
@@ -45,9 +79,16 @@ def c_compare(a: str, cop: str, b: str) -> str:
 
 
 class GenBase:
-    def __init__(self, prog: Program, test_build: bool = False, config_name: str | None = None):
+    def __init__(self, prog: Program, test_build: bool = False, config_name: str | None = None,
+                 split: bool = False):
         self.p = prog
         self.test_build = test_build
+        # split: one translation unit per source file (codegen.Gen.units), what units share declared extern
+        self.split = split
+        self.linkage = "PLC_UNUSED" if split else STATIC    # of the functions and variables units share
+        self.pieces: list[Piece] = []                       # marks over `out`
+        self.unit: str | None = None                        # the unit being written (split build)
+        self.unit_sites: dict[str, list[int]] = {}          # per unit, the sites its text names, in order
         self.out: list[str] = []
         self.ind = 0
         self.fn: FuncSym | None = None        # FUNCTION being generated
@@ -58,5 +99,14 @@ class GenBase:
             self.cfg = prog.configs[0]
 
     # ------------------------------------------------------------------ output --
+    @contextmanager
+    def piece(self, *defines: str, unit: str | None = None):
+        """Mark the lines written inside as one Piece."""
+        start = len(self.out)
+        prev, self.unit = self.unit, unit if unit is not None else self.unit
+        yield
+        self.unit = prev
+        self.pieces.append(Piece(start, len(self.out), defines, unit))
+
     def w(self, line: str = "") -> None:
         self.out.append("    " * self.ind + line if line else "")

@@ -34,7 +34,7 @@ class CallGen(GenBase):
             first = next((a for a in c.args if a.param is not None
                           and a.param.section == "VAR_IN_OUT"), None)
             ctx = f"&{self.lv(first.value)}" if first is not None else "NULL"
-            expr = f"plc_assert_done({expr}, {c.site}, {ctx})"
+            expr = f"plc_assert_done({expr}, {self.site_ref(c.site)}, {ctx})"
         return expr
 
     def user_call(self, c: A.Call, fs: FuncSym, eno_ptr: str) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import zlib
 
 from .. import types as T
-from .base import STATIC, GenBase, cid, c_string
+from .base import STATIC, TESTS_UNIT, GenBase, cid, c_string
 
 
 class ConfigGen(GenBase):
@@ -189,22 +189,32 @@ class ConfigGen(GenBase):
                 continue
             self.test_list.append(pt)
             f = cid(ctx.name)
-            w(f"{STATIC} void T_{pt.name}_init(void *self) {{ P_{pt.name}_init((P_{pt.name} *)self); }}")
-            w(f"{STATIC} int T_{pt.name}_body(void *self, void *ctx) {{")
-            w(f"    P_{pt.name} *s = (P_{pt.name} *)self;")
-            w("    jmp_buf jb;")
-            w("    plc_jmp_active = &jb;")
-            w(f"    s->{f} = *(S_ST_TESTCONTEXT *)ctx;")
-            w("    if (setjmp(jb) != 0) {")
-            w("        plc_jmp_active = NULL;")
-            w(f"        *(S_ST_TESTCONTEXT *)ctx = s->{f};")
-            w("        return plc_fault_rec.kind;")
-            w("    }")
-            w(f"    P_{pt.name}_body(s);")
-            w(f"    *(S_ST_TESTCONTEXT *)ctx = s->{f};")
-            w("    plc_jmp_active = NULL;")
-            w("    return 0;")
-            w("}")
+            if self.split:      # the entry points are in the test's own unit
+                with self.piece(f"T_{pt.name}_init", f"T_{pt.name}_body"):
+                    w(f"{self.linkage} void T_{pt.name}_init(void *self);")
+                    w(f"{self.linkage} int T_{pt.name}_body(void *self, void *ctx);")
+            with self.piece(unit=pt.pou.pos.file if self.split else TESTS_UNIT):
+                w(f"{self.linkage} void T_{pt.name}_init(void *self) {{ P_{pt.name}_init((P_{pt.name} *)self); }}")
+                w(f"{self.linkage} int T_{pt.name}_body(void *self, void *ctx) {{")
+                w(f"    P_{pt.name} *s = (P_{pt.name} *)self;")
+                w("    jmp_buf jb;")
+                w("    plc_jmp_active = &jb;")
+                w(f"    s->{f} = *(S_ST_TESTCONTEXT *)ctx;")
+                w("    if (setjmp(jb) != 0) {")
+                w("        plc_jmp_active = NULL;")
+                w(f"        *(S_ST_TESTCONTEXT *)ctx = s->{f};")
+                w("        return plc_fault_rec.kind;")
+                w("    }")
+                w(f"    P_{pt.name}_body(s);")
+                w(f"    *(S_ST_TESTCONTEXT *)ctx = s->{f};")
+                w("    plc_jmp_active = NULL;")
+                w("    return 0;")
+                w("}")
+        with self.piece(unit=TESTS_UNIT):
+            self.test_table(ctx_t)
+
+    def test_table(self, ctx_t) -> None:
+        w = self.w
         w("const plc_test_t plc_tests[] = {")
         for pt in self.test_list:
             w(f"    {{{c_string(pt.pou.text)}, {c_string(pt.pou.pos.file)}, {pt.pou.pos.line}, sizeof(P_{pt.name}), "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .. import ast as A
 from .. import types as T
-from .base import STATIC, GenBase, cid
+from .base import GenBase, cid
 
 
 class InitGen(GenBase):
@@ -73,7 +73,7 @@ class InitGen(GenBase):
 
     def agg_init(self, t: T.Type) -> None:
         ct = self.ctype(t)
-        self.w(f"{STATIC} void init_{ct}({ct} *p) {{")
+        self.w(f"{self.linkage} void init_{ct}({ct} *p) {{")
         self.ind += 1
         if isinstance(t, T.ArrayType):
             n = t.count()
@@ -92,7 +92,7 @@ class InitGen(GenBase):
 
     def pou_init(self, pt: T.PouType) -> None:
         self.pou = pt.pou
-        self.w(f"{STATIC} void P_{pt.name}_init(P_{pt.name} *self) {{")
+        self.w(f"{self.linkage} void P_{pt.name}_init(P_{pt.name} *self) {{")
         self.ind += 1
         self.w("self->EN = 1;")
         self.w("self->ENO = 1;")

@@ -6,7 +6,7 @@ from .. import ast as A
 from .. import types as T
 from ..diagnostics import InternalError
 from ..symbols import EnumValueSym, FuncSym, VarSym
-from .base import STATIC, GenBase, cid
+from .base import GenBase, cid
 
 
 class StatementGen(GenBase):
@@ -15,7 +15,8 @@ class StatementGen(GenBase):
         self.pou = pt.pou
         self.fn = None
         self.scope = pt.scope
-        self.w(f"{STATIC} void P_{pt.name}_body(P_{pt.name} *self) {{")
+        self.tmp = 0                # C temporaries are numbered per function: other POUs never shift them
+        self.w(f"{self.linkage} void P_{pt.name}_body(P_{pt.name} *self) {{")
         self.ind += 1
         self.w("(void)self;                 /* a body may use only globals, or be empty */")
         for v in pt.scope.vars.values():
@@ -31,6 +32,7 @@ class StatementGen(GenBase):
         self.pou = fs.pou
         self.fn = fs
         self.scope = fs.scope
+        self.tmp = 0
         self.w(self.func_proto(fs) + " {")
         self.ind += 1
         self.w(f"{self.ctype(fs.ret)} RESULT__;")

@@ -1,0 +1,220 @@
+"""The build cache: parse results and object files, each stored under a hash of everything it comes from.
+
+An edit then redoes only what depends on it (issue 33): `plc test`, `plc build` and `plc run` of a project keep
+one cache in its build/plc-cache/ (git ignores build/; removing the directory is always safe).
+
+- A parsed file (parser.parse) is keyed by its name, its text and the compiler's own sources; it stores the
+  tree and the diagnostics the lexer and the parser reported, which a hit reports again.
+- An object file (compile_units) is keyed by the C text of its translation unit (self-contained: every
+  declaration it uses is in its text), the headers it includes, the C compiler's identity and the flags.
+
+Every entry carries the SHA-256 of its payload and of its key; an entry whose payload or key does not match
+(a truncated write, a damaged disk, a file copied in by hand) is never used: it is built again and replaced.
+Entries are written to a temporary file and renamed, so a build stopped half-way leaves no half entry.
+"""
+from __future__ import annotations
+
+import gc
+import hashlib
+import os
+import pickle
+import subprocess
+import sys
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+from .diagnostics import Diagnostics
+
+CACHE_DIR = Path("build") / "plc-cache"
+MAGIC = b"plc-cache 1\n"
+
+_active: Cache | None = None
+
+
+def sha256(*parts: str | bytes) -> str:
+    h = hashlib.sha256()
+    for p in parts:
+        h.update(p.encode() if isinstance(p, str) else p)
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+_toolchain: str | None = None
+
+
+def toolchain_digest() -> str:
+    """A hash of the compiler's own Python sources and the Python version: a changed compiler never reuses a
+    parse result of an older one."""
+    global _toolchain
+    if _toolchain is None:
+        here = Path(__file__).resolve().parent
+        h = hashlib.sha256(sys.version.encode())
+        for f in sorted(here.rglob("*.py")):
+            h.update(f.relative_to(here).as_posix().encode() + b"\0")
+            h.update(f.read_bytes())
+        _toolchain = h.hexdigest()
+    return _toolchain
+
+
+class Cache:
+    """One cache directory: `parse/` and `obj/` entries named by their key."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.hits = 0
+        self.misses = 0
+        self.compiled: list[str] = []      # the units compile_units compiled (not found in the cache), by name
+
+    # -------------------------------------------------------------- entries --
+    def _path(self, kind: str, key: str, suffix: str) -> Path:
+        return self.root / kind / key[:2] / (key + suffix)
+
+    def load(self, kind: str, key: str, suffix: str = "") -> bytes | None:
+        """The payload stored under `key`, or None when absent or not intact (its checksums do not match)."""
+        try:
+            data = self._path(kind, key, suffix).read_bytes()
+        except OSError:
+            return None
+        head = len(MAGIC) + 128
+        if len(data) < head or not data.startswith(MAGIC):
+            return None
+        stored_key = data[len(MAGIC):len(MAGIC) + 64].decode("ascii", "replace")
+        stored_sum = data[len(MAGIC) + 64:head].decode("ascii", "replace")
+        payload = data[head:]
+        if stored_key != key or stored_sum != hashlib.sha256(payload).hexdigest():
+            return None
+        return payload
+
+    def store(self, kind: str, key: str, payload: bytes, suffix: str = "") -> None:
+        """Write the entry atomically; a cache that cannot be written only makes the next build slower."""
+        path = self._path(kind, key, suffix)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=path.name + ".", dir=path.parent)
+            with os.fdopen(fd, "wb") as f:
+                f.write(MAGIC + key.encode() + hashlib.sha256(payload).hexdigest().encode() + payload)
+            os.replace(tmp, path)
+        except OSError:
+            pass
+
+    # -------------------------------------------------------------- parsing --
+    def parsed(self, text: str, filename: str, diags: Diagnostics, parse_fn):
+        """parse_fn(text, filename, diags) through the cache: the tree, its diagnostics added to `diags`."""
+        key = sha256("parse", toolchain_digest(), filename, text, str(diags.portability))
+        payload = self.load("parse", key)
+        if payload is not None:
+            enabled = gc.isenabled()
+            gc.disable()            # a tree is many small objects, none of them cyclic garbage
+            try:
+                tree, items = pickle.loads(payload)
+            except Exception:       # an entry that does not load is a miss, whatever broke it
+                tree = None
+            finally:
+                if enabled:
+                    gc.enable()
+            if tree is not None:
+                self.hits += 1
+                diags.items.extend(items)
+                return tree
+        self.misses += 1
+        own = Diagnostics(portability=diags.portability)
+        tree = parse_fn(text, filename, own)
+        diags.items.extend(own.items)
+        try:
+            payload = pickle.dumps((tree, own.items), protocol=pickle.HIGHEST_PROTOCOL)
+        except RecursionError:      # a tree nested deeper than pickle goes: parsed again next time
+            return tree
+        self.store("parse", key, payload)
+        return tree
+
+
+def use(root: Path | None) -> Cache | None:
+    """Make the cache at `root` the one this process uses (None: no cache); return it."""
+    global _active
+    _active = Cache(root) if root is not None else None
+    return _active
+
+
+def active() -> Cache | None:
+    return _active
+
+
+# ----------------------------------------------------------------- objects --
+@dataclass
+class Unit:
+    """A translation unit to compile: its name (for the C file's name and messages) and its C text."""
+    name: str
+    text: str
+
+
+class UnitError(Exception):
+    """The C compiler refused a unit: its C file, the command and the compiler's output."""
+
+    def __init__(self, c_file: Path, command: list[str], output: str) -> None:
+        super().__init__(output)
+        self.c_file, self.command, self.output = c_file, command, output
+
+
+_cc_ids: dict[str, str] = {}
+
+
+def compiler_identity(cc: str) -> str:
+    """The C compiler's name and `--version` line: a different compiler never reuses an object."""
+    if cc not in _cc_ids:
+        proc = subprocess.run([cc, "--version"], capture_output=True, text=True)
+        _cc_ids[cc] = cc + "\n" + (proc.stdout.splitlines() or [""])[0]
+    return _cc_ids[cc]
+
+
+def compile_units(cache: Cache, units: list[Unit], cc: str, flags: list[str], headers: list[Path],
+                  src_dir: Path, jobs: int | None = None) -> list[Path]:
+    """The object file of every unit, compiled only when its cache entry is missing or not intact (in parallel,
+    `jobs` at a time: default the CPU count).  Each unit's C is written to `src_dir` (where a failure's C is
+    kept); raises UnitError for the first unit the C compiler refuses."""
+    ident = compiler_identity(cc)
+    head = sha256(ident, *flags, *(h.name.encode() + b"\0" + h.read_bytes() for h in headers))
+    src_dir.mkdir(parents=True, exist_ok=True)
+    objects: list[Path | None] = [None] * len(units)
+    todo = []
+    for k, u in enumerate(units):
+        key = sha256("object", head, u.text)
+        obj = cache.root / "obj" / key[:2] / f"{key}.o"
+        if obj.is_file() and cache.load("obj", key, ".sum") == _object_sum(obj):
+            cache.hits += 1
+            objects[k] = obj
+        else:
+            todo.append((k, u, key, obj))
+
+    def build(item):
+        k, u, key, obj = item
+        c_file = src_dir / f"{u.name}.c"
+        c_file.write_text(u.text)
+        obj.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=obj.name + ".", suffix=".o", dir=obj.parent)
+        os.close(fd)
+        cmd = [cc, *flags, "-c", str(c_file), "-o", tmp]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            os.unlink(tmp)
+            return k, UnitError(c_file, cmd, proc.stderr + proc.stdout)
+        os.replace(tmp, obj)
+        cache.store("obj", key, _object_sum(obj), ".sum")
+        return k, obj
+
+    cache.misses += len(todo)
+    cache.compiled = [u.name for _k, u, _key, _obj in todo]
+    with ThreadPoolExecutor(max_workers=jobs or os.cpu_count() or 1) as pool:
+        for k, out in pool.map(build, todo):
+            if isinstance(out, UnitError):
+                raise out
+            objects[k] = out
+    return objects   # type: ignore[return-value]
+
+
+def _object_sum(obj: Path) -> bytes | None:
+    try:
+        return hashlib.sha256(obj.read_bytes()).hexdigest().encode()
+    except OSError:
+        return None

@@ -1,0 +1,207 @@
+"""The build cache (issue 33): an edit recompiles only the C units whose text it changes, a changed TYPE or
+function block interface recompiles every unit that uses it (and the verdict is then a clean build's), and an
+entry that is damaged or stored under another key is never used.  A parse result from the cache is the parse."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from plc import buildcache
+from plc.codegen import generate, generate_units
+from plc.diagnostics import Diagnostics
+from plc.driver import compile_sources
+from plc.parser import parse_text
+from plc.testrunner import build_tests
+
+ROOT = Path(__file__).resolve().parents[2]
+
+TYPES = """TYPE
+    ST_Limits : STRUCT
+        low : INT := 2;
+        high : INT := 9;
+    END_STRUCT;
+END_TYPE
+"""
+
+CLAMP = """FUNCTION_BLOCK FB_Clamp
+VAR_INPUT
+    value : INT;
+    limits : ST_Limits;
+END_VAR
+VAR_OUTPUT
+    out : INT;
+END_VAR
+out := LIMIT(limits.low, value, limits.high);
+END_FUNCTION_BLOCK
+"""
+
+TWICE = """FUNCTION F_Twice : INT
+VAR_INPUT
+    x : INT;
+END_VAR
+F_Twice := x * 2;
+END_FUNCTION
+"""
+
+TEST = """FUNCTION_BLOCK TEST_ClampKeepsTheLimits
+VAR_IN_OUT
+    tc : ST_TestContext;
+END_VAR
+VAR
+    clamp : FB_Clamp;
+    limits : ST_Limits;
+END_VAR
+clamp(value := F_Twice(x := 10), limits := limits);
+tc.Ok := AssertEqualINT(tc, 9, clamp.out, 'clamped to the high limit');
+tc.Done := TRUE;
+END_FUNCTION_BLOCK
+"""
+
+
+def project(tmp: Path) -> tuple[Path, Path]:
+    src, tests = tmp / "st_src", tmp / "iec_tests"
+    src.mkdir()
+    tests.mkdir()
+    (src / "ST_Limits.st").write_text(TYPES)
+    (src / "FB_Clamp.st").write_text(CLAMP)
+    (src / "F_Twice.st").write_text(TWICE)
+    (tests / "TEST_ClampKeepsTheLimits.st").write_text(TEST)
+    return src, tests
+
+
+def build_and_run(src: Path, tests: Path, build: Path, cache: buildcache.Cache) -> tuple[list[str], list[str]]:
+    """(the units compiled, the runner's verdict lines) of one build."""
+    _res, exe = build_tests([str(tests)], [str(src)], build, quiet=True, cache=cache)
+    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=60).stdout
+    return cache.compiled, [line for line in out.splitlines() if line.startswith(("END ", "ASSERT "))]
+
+
+def unit_of(name: str, compiled: list[str]) -> bool:
+    return any(f"_{name}_st_" in u for u in compiled)
+
+
+def test_an_edit_recompiles_only_its_own_unit(tmp_path):
+    src, tests = project(tmp_path)
+    cache = buildcache.Cache(tmp_path / "cache")
+    first, verdict = build_and_run(src, tests, tmp_path / "b", cache)
+    assert unit_of("F_Twice", first) and unit_of("FB_Clamp", first) and "main" in first
+    assert [v.split()[2] for v in verdict if v.startswith("END ")] == ["PASS"]
+    again, _ = build_and_run(src, tests, tmp_path / "b", cache)
+    assert again == []                                  # nothing changed: every object from the cache
+    (src / "F_Twice.st").write_text(TWICE.replace("x * 2", "x * 3"))
+    edited, verdict = build_and_run(src, tests, tmp_path / "b", cache)
+    assert edited == [u for u in first if "_F_Twice_st_" in u]
+    assert [v.split()[2] for v in verdict if v.startswith("END ")] == ["PASS"]     # 30 clamps to 9 too
+
+
+def test_a_changed_type_or_fb_interface_rebuilds_its_users_and_the_verdict_is_a_clean_builds(tmp_path):
+    src, tests = project(tmp_path)
+    cache = buildcache.Cache(tmp_path / "cache")
+    build_and_run(src, tests, tmp_path / "b", cache)
+    # a member before `high`: every unit that lays out ST_Limits changes, the function's does not
+    (src / "ST_Limits.st").write_text(TYPES.replace("high : INT := 9;", "mid : SINT := 5;\n        high : INT := 7;"))
+    compiled, incremental = build_and_run(src, tests, tmp_path / "b", cache)
+    assert unit_of("FB_Clamp", compiled) and unit_of("TEST_ClampKeepsTheLimits", compiled)
+    assert not unit_of("F_Twice", compiled)
+    _, clean = build_and_run(src, tests, tmp_path / "clean", buildcache.Cache(tmp_path / "clean-cache"))
+    assert incremental == clean and "FAIL" in clean[-1], clean      # high is 7 now: expected 9, actual 7
+    # an input added to the function block: its callers' units change with its layout
+    (src / "FB_Clamp.st").write_text(CLAMP.replace("value : INT;", "value : INT;\n    offset : INT := 2;")
+                                     .replace("value, limits.high", "value + offset, limits.high"))
+    compiled, incremental = build_and_run(src, tests, tmp_path / "b", cache)
+    assert unit_of("FB_Clamp", compiled) and unit_of("TEST_ClampKeepsTheLimits", compiled)
+    assert not unit_of("F_Twice", compiled)
+    _, clean = build_and_run(src, tests, tmp_path / "clean2", buildcache.Cache(tmp_path / "clean-cache2"))
+    assert incremental == clean
+
+
+def test_a_damaged_or_misplaced_object_is_never_used(tmp_path):
+    src, tests = project(tmp_path)
+    cache = buildcache.Cache(tmp_path / "cache")
+    _, verdict = build_and_run(src, tests, tmp_path / "b", cache)
+    by_size = sorted((tmp_path / "cache" / "obj").rglob("*.o"), key=lambda o: o.stat().st_size)
+    big = by_size[-1]
+    big.write_bytes(big.read_bytes()[: big.stat().st_size // 2])           # a truncated write
+    compiled, again = build_and_run(src, tests, tmp_path / "b2", cache)
+    assert len(compiled) == 1 and again == verdict
+    # another unit's object and its checksum entry copied over this one's: the key inside does not match
+    victim, other = by_size[:2]
+    victim.write_bytes(other.read_bytes())
+    victim.with_suffix(".sum").write_bytes(other.with_suffix(".sum").read_bytes())
+    compiled, again = build_and_run(src, tests, tmp_path / "b3", cache)
+    assert len(compiled) == 1 and again == verdict
+
+
+def test_a_parse_result_from_the_cache_is_the_parse_with_its_diagnostics(tmp_path):
+    cache = buildcache.Cache(tmp_path / "cache")
+    bad = TWICE.replace("F_Twice := x * 2;", "F_Twice := x * ;")
+    for text in (TWICE, bad):
+        fresh = Diagnostics()
+        want = parse_text(text, "f.st", fresh)
+        for expect_hit in (False, True):
+            diags = Diagnostics()
+            hits = cache.hits
+            tree = cache.parsed(text, "f.st", diags, parse_text)
+            assert (cache.hits > hits) == expect_hit
+            assert repr(tree) == repr(want) and tree is not want     # nodes compare by identity: by their dump
+            assert [d.render() for d in diags.items] == [d.render() for d in fresh.items]
+    assert any(d.severity == "error" for d in fresh.items)      # the bad file's error is reported on a hit too
+    # damaged: one byte of the payload changed; misplaced: another file's entry under this key
+    key = buildcache.sha256("parse", buildcache.toolchain_digest(), "f.st", TWICE, "True")
+    path = cache._path("parse", key, "")
+    data = bytearray(path.read_bytes())
+    data[-5] ^= 0xFF
+    path.write_bytes(bytes(data))
+    misses = cache.misses
+    good = repr(parse_text(TWICE, "f.st", Diagnostics()))
+    assert repr(cache.parsed(TWICE, "f.st", Diagnostics(), parse_text)) == good
+    assert cache.misses == misses + 1
+    other = buildcache.sha256("parse", buildcache.toolchain_digest(), "f.st", bad, "True")
+    path.write_bytes(cache._path("parse", other, "").read_bytes())
+    assert repr(cache.parsed(TWICE, "f.st", Diagnostics(), parse_text)) == good
+    assert cache.misses == misses + 2
+
+
+def test_the_project_compiles_to_the_same_c_from_cached_parses(tmp_path):
+    """Every file of st_src/ and iec_tests/ loaded from the cache: the same program, to the byte of its C."""
+    paths = [str(ROOT / "st_src"), str(ROOT / "iec_tests")]
+    want = compile_sources(paths, test_build=True).c_text
+    buildcache.use(tmp_path / "cache")
+    try:
+        compile_sources(paths, test_build=True)
+        cache = buildcache.active()
+        hits, misses = cache.hits, cache.misses
+        got = compile_sources(paths, test_build=True).c_text
+        assert cache.misses == misses and cache.hits - hits > 100
+    finally:
+        buildcache.use(None)
+    assert got == want
+
+
+def test_the_split_build_is_the_single_unit_build_cut_into_units(tmp_path):
+    """The units together define what the single unit defines, and each compiles on its own (the runner links)."""
+    src, tests = project(tmp_path)
+    res = compile_sources([str(src), str(tests)], test_build=True)
+    single = generate(res.program, test_build=True)
+    res = compile_sources([str(src), str(tests)], test_build=True, generate=False)
+    units = dict(generate_units(res.program, test_build=True))
+    assert {"main", "tests", "sites", "types"} <= set(units)
+    def definitions(text: str) -> list[str]:
+        return [line.split("(")[0].split()[-1] for line in text.splitlines()
+                if line.endswith("{") and "(" in line and not line.startswith((" ", "static inline"))]
+    defined = definitions(single)
+    assert {"P_FB_CLAMP_body", "U_F_TWICE", "T_TEST_CLAMPKEEPSTHELIMITS_body", "plc_run"} <= set(defined)
+    assert sorted(n for text in units.values() for n in definitions(text) if n != "plc_raise") == \
+        sorted(n for n in defined if n != "plc_raise")       # each once; plc_raise is every unit's own
+
+
+def test_plc_test_keeps_the_cache_in_the_projects_build_directory(tmp_path):
+    project(tmp_path)
+    cmd = [sys.executable, "-m", "plc.cli", "test", "-v"]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert first.returncode == 0, first.stdout + first.stderr
+    assert (tmp_path / "build" / "plc-cache" / "obj").is_dir() and (tmp_path / "build" / "plc-cache" / "parse").is_dir()
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert "(0 C unit(s) compiled, the others from the cache)" in again.stdout, again.stdout
+    assert again.stdout.splitlines()[-1] == first.stdout.splitlines()[-1] == "1 passed, 0 failed"
