@@ -205,3 +205,14 @@ def test_plc_test_keeps_the_cache_in_the_projects_build_directory(tmp_path):
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert "(0 C unit(s) compiled, the others from the cache)" in again.stdout, again.stdout
     assert again.stdout.splitlines()[-1] == first.stdout.splitlines()[-1] == "1 passed, 0 failed"
+
+
+def test_a_parse_result_is_keyed_by_every_module_the_parser_imports():
+    """The key names the sources of every plc module that importing the parser loads (and no others, so an edit
+    of the C generator keeps the parse results)."""
+    code = ("import sys, plc.parser; print('\\n'.join(sorted(m.__file__ for n, m in sys.modules.items() "
+            "if n.startswith('plc.') and getattr(m, '__file__', None))))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    keyed = {str(p) for p in buildcache.parser_sources()}
+    assert {str(Path(f).resolve()) for f in loaded} <= keyed and len(keyed) >= 6
+    assert not any(p.name in ("codegen.py", "sema.py") for p in buildcache.parser_sources())

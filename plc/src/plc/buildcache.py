@@ -14,6 +14,7 @@ Entries are written to a temporary file and renamed, so a build stopped half-way
 """
 from __future__ import annotations
 
+import ast as pyast
 import gc
 import hashlib
 import os
@@ -45,17 +46,36 @@ _toolchain: str | None = None
 
 
 def toolchain_digest() -> str:
-    """A hash of the compiler's own Python sources and the Python version: a changed compiler never reuses a
-    parse result of an older one."""
+    """A hash of the Python version and the sources of the parser and every module of the package it imports,
+    however indirectly (parser_sources): a changed parser never reuses a parse result of an older one, and an
+    edit elsewhere in the toolchain keeps them."""
     global _toolchain
     if _toolchain is None:
-        here = Path(__file__).resolve().parent
+        package = Path(__file__).resolve().parent
         h = hashlib.sha256(sys.version.encode())
-        for f in sorted(here.rglob("*.py")):
-            h.update(f.relative_to(here).as_posix().encode() + b"\0")
+        for f in parser_sources():
+            h.update(f.relative_to(package).as_posix().encode() + b"\0")
             h.update(f.read_bytes())
         _toolchain = h.hexdigest()
     return _toolchain
+
+
+def parser_sources() -> list[Path]:
+    """parser.py and every module of the package it imports (relative imports, followed transitively), sorted."""
+    package = Path(__file__).resolve().parent
+    todo, seen = [package / "parser.py"], set()
+    while todo:
+        f = todo.pop()
+        if f in seen or not f.is_file():
+            continue
+        seen.add(f)
+        for node in pyast.walk(pyast.parse(f.read_text(), str(f))):
+            if isinstance(node, pyast.ImportFrom) and node.level == 1:
+                base = package.joinpath(*node.module.split(".")) if node.module else package
+                names = [base / a.name for a in node.names] + ([base] if node.module else [])
+                for name in names:
+                    todo += [name.with_suffix(".py"), name / "__init__.py"]
+    return sorted(seen)
 
 
 class Cache:
