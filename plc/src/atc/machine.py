@@ -20,6 +20,7 @@ from pathlib import Path
 from plc import tomlconf
 from plc.diagnostics import FILE_LINE, Diagnostic
 from plc.project import where
+from plc.timelit import ms_literal
 from plc.tomlconf import Bool, Field, Int, ListOf, Number, OneOf, Str, Table
 
 DEFAULT_OUT = Path("st_src") / "app" / "generated" / "FB_MachineConfig.st"
@@ -415,7 +416,7 @@ def _rel(path: Path, root: Path) -> str:
 
 
 def ms(v: int) -> str:
-    return f"T#{v}ms"
+    return ms_literal(v)
 
 
 def st_bool(v: bool) -> str:

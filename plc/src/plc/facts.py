@@ -68,6 +68,8 @@ RULES: dict[str, Rule] = {
                              "give it an initial value, or declare the subrange as a TYPE"),
     "time-conversion": Rule("{call} counts seconds in OpenPLC's MATIEC (not milliseconds)",
                             "keep durations as TIME and compare TIME values"),
+    "time-inexact": Rule("OpenPLC v3 makes T#{text} {openplc} ns, not {exact} ns: its __time_to_timespec truncates "
+                         "(x86-64), so a sum of it drifts and a comparison with it can flip", "{hint}"),
     "time-unit": Rule("'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
                       "write fractions of ms, e.g. T#1.5ms"),
     "wstring": Rule("double-quoted WSTRING literals are not supported by OpenPLC"),

@@ -12,7 +12,8 @@ each is a rule of RULES: what the pass finds itself goes through `report`.
 `lint`, run after the semantic passes, also looks at names:
 POU and TYPE names that collide with OpenPLC's library, identifiers MATIEC's
 lexer or code generator cannot take, and the CONFIGURATION/RESOURCE names
-OpenPLC needs; and at statement lists MATIEC rejects.
+OpenPLC needs; at statement lists MATIEC rejects; and at TIME literals OpenPLC
+converts inexactly.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from .diagnostics import Diagnostics
 from .facts import RULES, Fact, Rule, fact, rule_code  # noqa: F401 (the rules are part of this pass's interface)
 from .resources import DATA
 from .stdfuncs import STD_FUNCS, conversion
+from .timelit import exact_openplc_spelling, openplc_duration_ns
 from .types import ELEMENTARY, GENERIC, EnumType, StructType
 
 
@@ -75,6 +77,7 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
             continue
         if not f.path.lower().endswith(".xml#st"):    # a PLCopen project's types (plcopen.st_name) are
             type_order(f, prog, diags)                   # ordered by the tool that writes its ST, not the XML
+        inexact_durations(f, diags)
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
@@ -157,6 +160,24 @@ def type_order(f: A.SourceFile, prog, diags: Diagnostics) -> None:
                     later = declared[spec.name.upper()]
                     report(diags, "type-order", pos, type=td.text, used=later.text, line=later.pos.line)
             seen.add(td.name.upper())
+
+
+def inexact_durations(f: A.SourceFile, diags: Diagnostics) -> None:
+    """TIME literals OpenPLC v3 converts a nanosecond short (timelit.openplc_duration_ns). A TASK's INTERVAL is
+    exempt: iec2c computes the tick from it in integers (T#4ms: common_ticktime__ = 4000000ULL)."""
+    intervals = {id(n.interval) for item in f.items for n in A.walk(item) if isinstance(n, A.TaskDecl)}
+    for item in f.items:
+        for n in A.walk(item):
+            if not isinstance(n, A.TimeLit) or n.kind != "TIME" or n.value is None or id(n) in intervals:
+                continue
+            openplc = openplc_duration_ns(n.text)
+            if openplc is None or openplc == n.value:
+                continue
+            spelling = exact_openplc_spelling(n.value)
+            hint = f"write {spelling}, which OpenPLC converts exactly" if spelling else \
+                "no usual spelling of it is exact there: do not add it up scan after scan"
+            report(diags, "time-inexact", n.pos, text=n.text, openplc=f"{openplc:,}", exact=f"{n.value:,}",
+                   hint=hint)
 
 
 def errors_inside(pou: A.Pou, diags: Diagnostics) -> bool:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from plc import ast as A
 from plc.diagnostics import Diagnostics
 from plc.parser import parse
+from plc.timelit import ms_literal
 
 from .model import RegisterMap, Signal, display, iec_address, reason_order
 
@@ -59,13 +60,13 @@ def _comment(sig: Signal) -> str:
 def constants(rmap: RegisterMap) -> list[str]:
     link = rmap.link
     rows = [
-        ("LINK_PLC_ALIVE_TOGGLE", "TIME", f"T#{link.plc_alive_toggle_ms}ms",
+        ("LINK_PLC_ALIVE_TOGGLE", "TIME", ms_literal(link.plc_alive_toggle_ms),
          f"toggle {link.plc_alive} this often while running"),
-        ("LINK_PLC_TIMEOUT", "TIME", f"T#{link.plc_timeout_ms}ms",
+        ("LINK_PLC_TIMEOUT", "TIME", ms_literal(link.plc_timeout_ms),
          f"the host declares the link lost after this long without a {link.plc_alive} edge"),
-        ("LINK_HOST_HEARTBEAT_PERIOD", "TIME", f"T#{link.host_heartbeat_period_ms}ms",
+        ("LINK_HOST_HEARTBEAT_PERIOD", "TIME", ms_literal(link.host_heartbeat_period_ms),
          f"the host changes {link.host_heartbeat} at least this often"),
-        ("LINK_HOST_TIMEOUT", "TIME", f"T#{link.host_timeout_ms}ms",
+        ("LINK_HOST_TIMEOUT", "TIME", ms_literal(link.host_timeout_ms),
          f"no {link.host_heartbeat} change for this long: link lost (REASON_HOST_LINK_LOST)"),
     ]
     for r in sorted(rmap.reasons, key=reason_order):

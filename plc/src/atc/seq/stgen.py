@@ -13,6 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from plc.project import where
+from plc.timelit import ms_literal
 
 from .assemble import Assembly
 from .diagnostics import format_ranges
@@ -41,7 +42,7 @@ def st_string(text: str) -> str:
 
 
 def st_time(ms: int) -> str:
-    return f"T#{ms}ms"
+    return ms_literal(ms)
 
 
 def st_bool(value: bool) -> str:
