@@ -244,7 +244,16 @@ def test_truncated_files_give_diagnostics_never_a_traceback(tmp_path, capsys):
         assert code == 1 and "error:" in err, err
         outcomes.add(code)
         assert not (tmp_path / "out").exists()
+        assert re.search(r"LdCounter\.ld:\d+:\d+: error: in LdCounter[,:]", err), err
     assert outcomes == {1}
+    ld.write_text(src)
+    pj = proj / "project.json"
+    whole = pj.read_text()
+    for cut in range(0, len(whole), max(1, len(whole) // 30)):
+        pj.write_text(whole[:cut])
+        code, err = run_import(proj, tmp_path / "out", capsys)
+        assert code == 1 and re.search(r"project\.json:\d+:\d+: error: ", err), err
+        assert not (tmp_path / "out").exists()
 
 
 # ----------------------------------------------------------------- export for Editor v4 --
@@ -408,3 +417,38 @@ def test_ld_rungs_sharing_a_rail_are_flagged_one_rail_pair_per_rung_is_not():
     assert "POU P: Editor v4 shows its 2 networks as 1 rung(s): they share a power rail (draw one rail pair per " \
            "rung)" in shared
     assert problems(parse_bytes(LD_TWO_RUNGS.replace("RAILS", PAIRS).replace("LEFT2", "7").encode())) == []
+
+
+def edit_body(path: Path, change) -> None:
+    """Rewrite the JSON body of an .ld/.fbd file through change(body), as the editor would write it."""
+    import json
+    text = path.read_text()
+    start, end = text.index("\n{") + 1, text.rindex("END_")
+    body = json.loads(text[start:end])
+    change(body)
+    path.write_text(text[:start] + json.dumps(body, indent=2) + "\n" + text[end:])
+
+
+def test_a_power_flow_loop_and_an_unwired_connector_are_positioned_errors(tmp_path, capsys):
+    proj = project_copy(tmp_path)
+    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
+
+    def loop(body):
+        edge = next(e for e in body["rungs"][0]["edges"] if e["target"] == "coil_done")
+        edge["source"], edge["sourceHandle"] = "coil_done", "output"
+    edit_body(ld, loop)
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    line = line_of(ld, '"id": "coil_done"')
+    assert re.search(rf"LdCounter\.ld:{line}:1: error: in LdCounter, rung 1, node 'coil_done' \(localId \d+\): the "
+                     r"wire into coil \d+ comes back from its own output", err), err
+
+    proj = project_copy(tmp_path / "b")
+    fbd = proj / "pous" / "function-blocks" / "FbdScale.fbd"
+    edit_body(fbd, lambda b: b["rung"].update(edges=[e for e in b["rung"]["edges"] if e["target"] != "con_sum"]))
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1
+    line = line_of(fbd, '"id": "con_sum"')
+    assert re.search(rf"FbdScale\.fbd:{line}:1: error: in FbdScale, node 'con_sum' \(localId \d+\): connector 'Sum' "
+                     "has nothing wired into it", err), err
+    assert not (tmp_path / "out").exists()

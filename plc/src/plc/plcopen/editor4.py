@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import ast as A
-from ..diagnostics import Diagnostics, Pos
+from ..diagnostics import Diagnostics, InternalError, Pos
 from ..driver import display_name
 from ..parser import parse
 from ..stdfuncs import STD_FUNCS
@@ -86,6 +86,20 @@ class Unit:
             self.lines.append((part, origin))
 
 
+# ------------------------------------------------------------------ JSON shapes --
+def objs(v, what: str, file: str, line: int = 1, pou: str = "") -> list[dict]:
+    """A JSON list of objects (absent: empty), or EditorError naming what is malformed."""
+    if v is None:
+        return []
+    if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+        raise EditorError(f"{what} is not a list of objects", file, line, 0, pou)
+    return v
+
+
+def obj(v) -> dict:
+    return v if isinstance(v, dict) else {}
+
+
 # ------------------------------------------------------------------ text helpers --
 def line_col(text: str, offset: int) -> tuple[int, int]:
     line = text.count("\n", 0, offset) + 1
@@ -125,7 +139,7 @@ def split_pou(path: Path, file: str, text: str, kind: str) -> PouText:
     head = HEADER.match(text, start)
     if head is None:
         line = line_col(text, start)[0]
-        raise EditorError(f"no {kind} header (the file is in the folder for {kind} POUs)", file, line)
+        raise EditorError(f"no {kind} header (the file is in the folder for {kind} POUs)", file, line, 0, path.stem)
     if head.group(1).upper() != kind:
         line, col = line_col(text, head.start(1))
         raise EditorError(f"the header says {head.group(1).upper()}, but the file is in the folder for {kind} POUs",
@@ -178,24 +192,30 @@ class EditorProject:
             self.errors.append(e)
             return []
         pous = self.pou_files()
-        for dt in data.get("dataTypes") or []:
-            if isinstance(dt, dict):
-                self.type_names.add(str(dt.get("name", "")).upper())
-        config = (data.get("configuration") or {}).get("resource") or {}
+        try:
+            data_types = objs(data.get("dataTypes"), "data.dataTypes", pj_name)
+            config = obj(obj(data.get("configuration")).get("resource"))
+            for key in ("tasks", "instances", "globalVariables"):
+                objs(config.get(key), f"data.configuration.resource.{key}", pj_name,
+                     find_key_line(pj_text, key))
+        except EditorError as e:
+            self.errors.append(e)
+            return []
+        for dt in data_types:
+            self.type_names.add(str(dt.get("name", "")).upper())
         for v in config.get("globalVariables") or []:
-            if isinstance(v, dict):
-                try:
-                    self.global_types[str(v.get("name", "")).upper()] = self.var_type(v.get("type"), pj_name, pj_text,
-                                                                                      str(v.get("name", "")))
-                except EditorError:
-                    pass          # reported with the configuration
+            name = str(v.get("name", ""))
+            try:
+                self.global_types[name.upper()] = self.var_type(v.get("type"), pj_name, pj_text, name)
+            except EditorError:
+                pass          # reported with the configuration
         for p in list(pous):
             try:
                 self.signature(p)
             except EditorError as e:
                 self.errors.append(e)
                 pous.remove(p)
-        for dt in data.get("dataTypes") or []:
+        for dt in data_types:
             self.guard(self.data_type, dt, pj_name, pj_text)
         for p in pous:
             self.guard(self.pou, p)
@@ -221,7 +241,7 @@ class EditorProject:
         if not isinstance(data.get("dataTypes", []), list):
             raise EditorError("data.dataTypes is not a list", pj_name, 1)
         conf = data.get("configuration")
-        if conf is not None and not isinstance((conf or {}).get("resource"), dict):
+        if conf is not None and not isinstance(obj(conf).get("resource"), dict):
             raise EditorError("data.configuration has no \"resource\" object", pj_name, 1)
         return data
 
@@ -244,9 +264,10 @@ class EditorProject:
                     text = path.read_text(encoding="utf-8")
                     found.append(split_pou(path, self.file(rel), text, kind))
                 except UnicodeDecodeError:
-                    self.errors.append(EditorError("not UTF-8 text", self.file(rel), 1))
+                    self.errors.append(EditorError("not UTF-8 text", self.file(rel), 1, 0, path.stem))
                 except OSError as e:
-                    self.errors.append(EditorError(f"cannot read: {e.strerror or e}", self.file(rel)))
+                    self.errors.append(EditorError(f"cannot read: {e.strerror or e}", self.file(rel), 0, 0,
+                                                   path.stem))
                 except EditorError as e:
                     self.errors.append(e)
         names: dict[str, str] = {}
@@ -293,9 +314,10 @@ class EditorProject:
         if d in ("user-data-type", "derived") and isinstance(v, str) and v:
             return v
         if d == "array":
-            data = t.get("data") or {}
+            data = obj(t.get("data"))
             base = self.var_type(data.get("baseType"), file, text, name)
-            dims = ", ".join(str(x.get("dimension", "")) for x in data.get("dimensions") or [] if isinstance(x, dict))
+            dim_list = objs(data.get("dimensions"), f"array {name}: dimensions", file, find_line(text, name))
+            dims = ", ".join(str(x.get("dimension", "")) for x in dim_list)
             if not dims:
                 raise EditorError(f"array variable {name} has no dimensions", file, find_line(text, name))
             return f"ARRAY [{dims}] OF {base}"
@@ -315,21 +337,23 @@ class EditorProject:
         unit.add("TYPE", here)
         if deriv == "structure":
             unit.add(f"    {name} : STRUCT", here)
-            for m in dt.get("variable") or []:
+            for m in objs(dt.get("variable"), f"structure {name}: variable", file, line, name):
                 mname = str(m.get("name", ""))
                 mtype = self.var_type(m.get("type"), file, text, f"{name}.{mname}")
-                minit = ((m.get("initialValue") or {}).get("simpleValue") or {}).get("value")
+                minit = obj(obj(m.get("initialValue")).get("simpleValue")).get("value")
                 unit.add(f"        {mname} : {mtype}" + (f" := {minit}" if minit not in (None, "") else "") + ";",
                          Origin(file, find_line(text, mname, line), name))
             unit.add("    END_STRUCT;", here)
         elif deriv == "enumerated":
-            values = [str(v.get("description", "")) for v in dt.get("values") or [] if isinstance(v, dict)]
+            values = [str(v.get("description", "")) for v in objs(dt.get("values"), f"enumeration {name}: values",
+                                                                   file, line, name)]
             if not values:
                 raise EditorError(f"enumeration {name} has no values", file, line, 0, name)
             unit.add(f"    {name} : ({', '.join(values)}){tail};", here)
         elif deriv == "array":
             base = self.var_type(dt.get("baseType"), file, text, name)
-            dims = ", ".join(str(x.get("dimension", "")) for x in dt.get("dimensions") or [])
+            dims = ", ".join(str(x.get("dimension", "")) for x in objs(dt.get("dimensions"),
+                                                                        f"array {name}: dimensions", file, line, name))
             unit.add(f"    {name} : ARRAY [{dims}] OF {base}{tail};", here)
         else:
             raise EditorError(f"data type {name}: derivation {deriv!r} (structure, enumerated or array)", file, line,
@@ -366,11 +390,19 @@ class EditorProject:
             raise EditorError(f"malformed JSON body: {e.msg}", p.file, line, col, p.name) from None
         graph = Graph(p, start_line, raw.lstrip(), self.known_blocks)
         elems = graph.ld(value) if language == "LD" else graph.fbd(value)
+        graph.check_loops(elems)
         ctx = Context(p.name, p.kind, var_types, self.sigs, taken)
         try:
             result = Translator(elems, ctx, language).run()
         except GraphError as e:
             raise EditorError(str(e), p.file, e.line, 0, p.name, graph.where(e.local_id)) from None
+        except RecursionError:
+            raise EditorError("the wiring of this body is nested or looped too deeply to translate", p.file,
+                              start_line, 0, p.name) from None
+        except (TypeError, KeyError, AttributeError, ValueError, IndexError) as e:
+            # a graph the translation does not handle: a bug of plc, reported as one (exit 3), never a traceback
+            raise InternalError(Pos(p.file, start_line, 1), f"in {p.name}: the {language} translation failed: "
+                                f"{type(e).__name__}: {e}") from None
         unit.networks = result.networks
         for msg, el in result.warnings:
             self.warnings.append(EditorError(msg, p.file, el.line, 0, p.name, graph.where(el.id)))
@@ -391,9 +423,9 @@ class EditorProject:
 
     # ---------------------------------------------------------- configuration --
     def configuration(self, res: dict, file: str, text: str) -> Unit | None:
-        tasks = res.get("tasks") or []
-        instances = res.get("instances") or []
-        globals_ = res.get("globalVariables") or []
+        tasks = objs(res.get("tasks"), "tasks", file)
+        instances = objs(res.get("instances"), "instances", file)
+        globals_ = objs(res.get("globalVariables"), "globalVariables", file)
         if not (tasks or instances or globals_):
             return None
         base = text.find('"configuration"')
@@ -424,7 +456,11 @@ class EditorProject:
             if t.get("triggering") != "Cyclic":
                 raise EditorError(f"task {name}: only Cyclic tasks can be imported (an Interrupt task names no "
                                   "SINGLE variable in Editor v4's project)", file, line, 0, "Config0")
-            priority = int(t.get("priority") or 0)
+            try:
+                priority = int(t.get("priority") or 0)
+            except (TypeError, ValueError):
+                raise EditorError(f"task {name}: priority {t.get('priority')!r} is not a number", file, line, 0,
+                                  "Config0") from None
             unit.add(f"        TASK {name}(INTERVAL := {t.get('interval')}, PRIORITY := {priority});",
                      Origin(file, line, "Config0"))
         for i in instances:
@@ -442,6 +478,11 @@ def spec_text(d: A.VarDecl, text: str) -> str:
     if isinstance(d.spec, A.TypeRef):
         return d.spec.name
     return ""
+
+
+def find_key_line(text: str, key: str) -> int:
+    m = re.search(r'"' + re.escape(key) + r'"\s*:', text)
+    return line_col(text, m.start())[0] if m else 1
 
 
 def find_line(text: str, name: str, after_line: int = 1) -> int:
@@ -469,6 +510,7 @@ class Graph:
             self.lines.setdefault(m.group(1), start_line + body.count("\n", 0, m.start()))
         self.start_line = start_line
         self.labels: dict[int, str] = {}
+        self.json_ids: dict[int, str] = {}
         self.node_lines: dict[int, int] = {}
         self.used: set[int] = set()
         self.next_id = 1
@@ -485,7 +527,7 @@ class Graph:
         return Origin(self.p.file, self.node_lines.get(local_id, self.start_line), self.p.name, self.where(local_id))
 
     def local_id(self, node: dict) -> int:
-        raw = str((node.get("data") or {}).get("numericId", ""))
+        raw = str(obj(node.get("data")).get("numericId", ""))
         lid = int(raw) if raw.isdigit() and int(raw) < 2**31 else 0
         if lid == 0 or lid in self.used:
             while self.next_id in self.used:
@@ -513,14 +555,15 @@ class Graph:
 
     def element(self, node: dict, kind: str, where: str, y_shift: float) -> Element:
         lid = self.local_id(node)
-        pos = node.get("position") or {}
+        pos = obj(node.get("position"))
         try:
             x, y = float(pos.get("x", 0)), float(pos.get("y", 0))
         except (TypeError, ValueError):
             x, y = 0.0, 0.0
-        order = (node.get("data") or {}).get("executionOrder") or 0
+        order = obj(node.get("data")).get("executionOrder") or 0
         e = Element(lid, kind, self.lines.get(node["id"], self.start_line), x, y + y_shift,
                     int(order) if isinstance(order, (int, float)) else 0)
+        self.json_ids[lid] = node["id"]
         self.labels[lid] = f"{where}, node '{node['id']}' (localId {lid})" if where else \
             f"node '{node['id']}' (localId {lid})"
         self.node_lines[lid] = e.line
@@ -543,10 +586,13 @@ class Graph:
                              "block nor a POU of this project", node["id"], self.labels[e.id])
         if variant.get("type") == "function-block" or e.type_name.upper() in standard_fb_sigs():
             e.instance = self.name(node)
-        ins = [str(h.get("id")) for h in data.get("inputHandles") or [] if isinstance(h, dict)]
-        outs = [str(h.get("id")) for h in data.get("outputHandles") or [] if isinstance(h, dict)]
+        where_ = self.labels[e.id]
+        ins = [str(h.get("id")) for h in objs(data.get("inputHandles"), "inputHandles", self.p.file, e.line,
+                                               self.p.name)]
+        outs = [str(h.get("id")) for h in objs(data.get("outputHandles"), "outputHandles", self.p.file, e.line,
+                                                self.p.name)]
         if not ins and not outs:
-            for v in variant.get("variables") or []:
+            for v in objs(variant.get("variables"), f"{where_}: variant.variables", self.p.file, e.line, self.p.name):
                 cls = v.get("class")
                 if cls in ("input", "inOut"):
                     ins.append(str(v.get("name")))
@@ -601,6 +647,45 @@ class Graph:
                                      "input", ed["id"], self.labels[target.id])
             for el, spin in sources(ed, frozenset()):
                 target.inputs[pin].refs.append(Ref(el.id, spin, self.lines.get(ed["id"], target.line)))
+
+    def check_loops(self, elems: list[Element]) -> None:
+        """A wire loop through contacts, coils, variables or connectors only (no block to hold a value) has no
+        meaning: refused at a node on the loop."""
+        by_id = {e.id: e for e in elems}
+        state: dict[int, int] = {}
+
+        def visit(e: Element) -> None:
+            stack = [(e, iter([r.source for p in e.inputs.values() for r in p.refs]))]
+            state[e.id] = 1
+            while stack:
+                node, it = stack[-1]
+                nxt = next(it, None)
+                if nxt is None:
+                    state[node.id] = 2
+                    stack.pop()
+                    continue
+                src = by_id.get(nxt)
+                if src is None or src.kind == "block":
+                    continue
+                if state.get(src.id) == 1:
+                    raise self.error(f"the wire into {node.kind} {node.id} comes back from its own output, through "
+                                     "no block: a loop of power flow", self.json_ids.get(node.id, ""),
+                                     self.labels.get(node.id, ""))
+                if src.id not in state:
+                    state[src.id] = 1
+                    stack.append((src, iter([r.source for p in src.inputs.values() for r in p.refs])))
+
+        for e in elems:
+            if e.kind != "block" and e.id not in state:
+                visit(e)
+        connectors = {e.text.upper(): e for e in elems if e.kind == "connector"}
+        for e in elems:
+            if e.kind == "connector" and not e.inputs[""].refs:
+                raise self.error(f"connector '{e.text}' has nothing wired into it", self.json_ids.get(e.id, ""),
+                                 self.labels.get(e.id, ""))
+            if e.kind == "continuation" and e.text.upper() not in connectors:
+                raise self.error(f"continuation '{e.text}' has no connector of that name", self.json_ids.get(e.id, ""),
+                                 self.labels.get(e.id, ""))
 
     # --------------------------------------------------------------------- LD --
     def ld(self, value) -> list[Element]:
@@ -667,7 +752,7 @@ class Graph:
         if not name:
             return None              # Editor v4 leaves an unnamed pin variable out of its XML too
         block = data.get("block") if isinstance(data.get("block"), dict) else {}
-        if block.get("id") not in by_node:
+        if not isinstance(block.get("id"), str) or block["id"] not in by_node:
             raise self.error(f"variable '{name}' belongs to block node '{block.get('id')}', which this rung does "
                              "not have", n["id"], where)
         variant = data.get("variant")
