@@ -99,6 +99,15 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
     "var-std-name": (prog("VAR limit : INT; END_VAR", "limit := 1;"), None),
     "var-type-name": ("TYPE E_Mode : (Idle, Moving); END_TYPE\n" + prog("VAR e_mode : INT; END_VAR", "e_mode := 1;"),
                       None),
+    "strucpp-enum-literal": ("TYPE E_Mode : (Idle, Moving); END_TYPE\n" +
+                             prog("VAR m : E_Mode; END_VAR", "m := E_Mode#Moving;"), "openplc-v4"),
+    "strucpp-negative-time": (prog(OK, "t := T#-20ms;"), "openplc-v4"),
+    "strucpp-nested-comment": (prog(OK, "(* a (* b *)\nx := 1;"), "openplc-v4"),
+    "strucpp-case-label": (prog(OK, "CASE x OF\n1, 2, 3, 4, 5: x := 0;\nEND_CASE;"), "openplc-v4"),
+    "strucpp-keyword": (prog("VAR this : INT; END_VAR", "this := 1;"), "openplc-v4"),
+    "strucpp-library-call": ("FUNCTION_BLOCK FB_Die\nVAR_INPUT faces : INT; END_VAR\nVAR_OUTPUT v : INT; END_VAR\n"
+                             "v := faces;\nEND_FUNCTION_BLOCK\n" +
+                             prog("VAR rnd : FB_Die; x : INT; END_VAR", "rnd(faces := 6);\nx := rnd.v;"), "openplc-v4"),
 }
 
 
@@ -130,7 +139,7 @@ def test_every_portability_warning_over_the_corpus_is_a_rule():
     seen: dict[str, int] = {}
     strays = []
     for name, text in items:
-        for target in (None, "openplc"):
+        for target in (None, "openplc", "openplc-v4"):
             for d in portability_warnings(text, target):
                 seen[d.code] = seen.get(d.code, 0) + 1
                 if d.code not in codes:

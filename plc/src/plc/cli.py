@@ -149,7 +149,9 @@ def add_compile_opts(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="PATH",
                    help=".st files, PLCopen .xml projects or directories (searched recursively)")
     p.add_argument("--no-portability", action="store_true", help="do not warn about constructs MATIEC rejects")
-    p.add_argument("--target", choices=["openplc"], help="also check what this deploy target requires")
+    p.add_argument("--target", choices=["openplc", "openplc-v4"],
+                   help="also check what this deploy target requires: openplc (v3: CONFIGURATION Config0, RESOURCE "
+                        "Res0), openplc-v4 (what its compiler STruC++ rejects or reads otherwise)")
     p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
 
 

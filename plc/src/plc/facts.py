@@ -14,9 +14,11 @@ from .diagnostics import Pos
 
 @dataclass(frozen=True)
 class Rule:
-    """A portability warning; message and hint are str.format templates over the details of the fact."""
+    """A portability warning; message and hint are str.format templates over the details of the fact.  A rule
+    with a target is reported only when checking for that deploy target (`plc check --target`)."""
     message: str
     hint: str | None = None
+    target: str | None = None
 
 
 # rule -> warning; a warning's diagnostic code is "portability." + its rule (docs/matiec.md lists every rule with
@@ -96,6 +98,23 @@ RULES: dict[str, Rule] = {
                               "choose another name"),
     "var-std-name": Rule("variable '{name}' is named like a standard function"),
     "var-type-name": Rule("variable '{name}' is named like a type", "choose another name"),
+    # STruC++, the compiler of OpenPLC v4 (--target openplc-v4): the lexer and the parser record the first three,
+    # the portability pass finds the others
+    "strucpp-enum-literal": Rule("STruC++ (OpenPLC v4) rejects the enumeration literal {text}: its lexer stops at "
+                                 "the '#'", "write {value} alone (MATIEC takes it when no other enumeration "
+                                 "declares {value}); STruC++'s {enum}.{value} is not MATIEC's", "openplc-v4"),
+    "strucpp-negative-time": Rule("STruC++ (OpenPLC v4) rejects the negative TIME literal {text}",
+                                  "write -{positive}: MATIEC and STruC++ both take it", "openplc-v4"),
+    "strucpp-nested-comment": Rule("'(*' inside a comment: STruC++ (OpenPLC v4) nests comments, so this one ends "
+                                   "at a later '*)' (or never), where MATIEC and plc end it at the first",
+                                   "write the inner text without '(*'", "openplc-v4"),
+    "strucpp-case-label": Rule("STruC++ (OpenPLC v4) does not see this CASE arm: {why}",
+                               "split the arm: a label starts with a number, '-' or a name, and ':' comes "
+                               "within 8 tokens (at most 4 plain labels)", "openplc-v4"),
+    "strucpp-keyword": Rule("'{name}' is a keyword to STruC++ (OpenPLC v4)", "choose another name", "openplc-v4"),
+    "strucpp-library-call": Rule("function block instance '{name}' is named like the function {function} of the "
+                                 "libraries STruC++ (OpenPLC v4) loads: it calls the function, not the instance",
+                                 "choose another name", "openplc-v4"),
 }
 
 

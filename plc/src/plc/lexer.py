@@ -145,6 +145,8 @@ class Lexer:
             if self.src.startswith(closer, self.i):
                 self.advance(2)
                 return
+            if opener == "(*" and self.src.startswith(opener, self.i):     # STruC++ nests comments
+                self.facts.append(fact("strucpp-nested-comment", self.pos()))
             self.advance()
         self.diags.error(start, "unterminated comment", f"a '{opener}' comment needs a closing '{closer}'")
 
@@ -189,6 +191,9 @@ class Lexer:
         body = self.src[body_start:self.i]
         if not body:
             self.diags.error(pos, f"empty {kind} literal")
+        elif body[0] == "-" and kind in ("TIME", "LTIME"):
+            prefix = self.src[start:body_start]
+            self.facts.append(fact("strucpp-negative-time", pos, text=prefix + body, positive=prefix + body[1:]))
         self.emit("TIME", (kind, body), start, pos)
 
     def digits(self, ok) -> str:

@@ -566,6 +566,7 @@ class Parser:
                 raise self.fail(f"expected END_CASE to close CASE opened at {kw.pos.line}:{kw.pos.col}, "
                                 f"found {self.describe(self.tok)}")
             labels = []
+            first = self.k
             while True:
                 lo = self.case_value()
                 hi = None
@@ -574,12 +575,32 @@ class Parser:
                 labels.append(A.CaseLabel(lo.pos, lo, hi))
                 if not self.accept_sym(","):
                     break
+            self.strucpp_labels(first)
             self.expect_sym(":", "after the CASE label", "labels are written `1, 3..5:`")
             body = self.case_body(kw)
             arms.append((labels, body))
         self.next()
         self.end_stmt("END_CASE")
         return A.Case(kw.pos, sel, arms, orelse)
+
+    def strucpp_labels(self, first: int) -> None:
+        """STruC++ takes a CASE arm only if its first token is a number, '-' or a name and its ':' is among the
+        first 8 tokens (one token for what its lexer reads as one: 16#FF, INT#5, T#1s; E_Kind#Value counts as the
+        Value it must become)."""
+        if not self.tok.is_sym(":"):
+            return
+        toks = self.toks[first:self.k]
+        start = toks[0]
+        # E_Kind#Value has a warning of its own (strucpp-enum-literal) and counts as the one token Value
+        enum_start = start.kind == "TYPEPFX" and len(toks) > 1 and toks[1].kind == "IDENT"
+        plain_start = start.kind in ("INT", "IDENT") or start.is_sym("-")
+        if not (enum_start or plain_start):
+            why = f"its first label starts with {start.text!r}"
+        elif len([t for t in toks if t.kind != "TYPEPFX"]) > 7:
+            why = "its ':' is not among its first 8 tokens"
+        else:
+            return
+        self.facts.append(fact("strucpp-case-label", start.pos, why=why))
 
     def case_value(self) -> A.Expr:
         return self.unary()
@@ -767,6 +788,8 @@ class Parser:
             return A.StrLit(t.pos, v.value, prefix)
         if v.kind == "IDENT" and not neg:
             self.next()
+            self.facts.append(fact("strucpp-enum-literal", t.pos, text=f"{t.text}#{v.text}", enum=t.text,
+                                   value=v.text))
             return A.EnumLit(t.pos, prefix, v.value)
         raise self.fail(f"expected a literal after '{t.text}#', found {self.describe(v)}")
 

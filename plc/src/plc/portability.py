@@ -29,18 +29,21 @@ from .timelit import exact_openplc_spelling, openplc_duration_ns
 from .types import ELEMENTARY, GENERIC, EnumType, StructType
 
 
-def warn(facts: list[Fact], diags: Diagnostics) -> None:
-    """Each recorded fact as its rule's warning, in the order the stages found them."""
+def warn(facts: list[Fact], diags: Diagnostics, target: str | None = None) -> None:
+    """Each recorded fact as its rule's warning, in the order the stages found them (a rule of a deploy target
+    only when checking for that target)."""
     for f in facts:
         r = RULES[f.rule]
+        if r.target is not None and r.target != target:
+            continue
         details = dict(f.details)
         diags.portable(f.pos, r.message.format(**details), r.hint.format(**details) if r.hint else None,
                        code=rule_code(f.rule))
 
 
-def report(diags: Diagnostics, rule: str, pos, **details) -> None:
+def report(diags: Diagnostics, rule: str, pos, target: str | None = None, **details) -> None:
     """The warning of `rule` at `pos`, for what the portability pass finds itself."""
-    warn([fact(rule, pos, **{k: str(v) for k, v in details.items()})], diags)
+    warn([fact(rule, pos, **{k: str(v) for k, v in details.items()})], diags, target)
 
 
 # Identifiers MATIEC's parser refuses as variable names besides our keywords (measured with iec2c -p).
@@ -68,9 +71,11 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
     """The portability pass: the facts the lexer, parser and semantic passes recorded become warnings (file by
     file, then the passes'), then the names and statement lists of the user's files are checked."""
     for f in files:
-        warn(f.facts, diags)
-    warn(prog.facts, diags)
+        if f.path not in builtin:
+            warn(f.facts, diags, target)
+    warn(prog.facts, diags, target)
     lib = library_identifiers()
+    v4 = target == "openplc-v4"
     enum_owners = enumeration_owners(files)
     for f in files:
         if f.path in builtin:
@@ -81,6 +86,8 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
+                if v4:
+                    strucpp_names(item, prog, diags)
                 if not errors_inside(item, diags):   # a syntax error may have emptied a statement list
                     statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
                 if item.kind == "FUNCTION" and not item.blocks:
@@ -90,6 +97,8 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
             elif isinstance(item, A.TypeBlock):
                 for td in item.decls:
                     pou_name(td.name, td.text, td.pos, "TYPE", lib, diags)
+                    if v4:
+                        strucpp_type_names(td, diags)
                     aliased = prog.types.get(td.spec.name) if isinstance(td.spec, A.TypeRef) else None
                     if isinstance(aliased, (EnumType, StructType)):
                         kind = "an enumeration" if isinstance(aliased, EnumType) else "a STRUCT"
@@ -110,10 +119,14 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                 for b in item.globals:
                     for d in b.decls:
                         var_name(d, prog, diags, lib)
+                        if v4:
+                            strucpp_keyword(d.name, d.text, d.pos, diags)
                 for r in item.resources:
                     for b in r.globals:
                         for d in b.decls:
                             var_name(d, prog, diags, lib)
+                            if v4:
+                                strucpp_keyword(d.name, d.text, d.pos, diags)
 
 
 def enumeration_owners(files: list[A.SourceFile]) -> dict[str, list[str]]:
@@ -271,3 +284,50 @@ def config_names(cfg: A.Configuration, diags: Diagnostics, target: str | None) -
     for r in cfg.resources:
         if r.text and r.text != "Res0":
             report(diags, "openplc-resource", r.pos, name=r.text)
+
+
+# Words STruC++ 0.6.1's lexer reserves that MATIEC and plc take as names (each tried as a variable name with
+# STruC++; ABSTRACT, FINAL, OVERRIDE, GET, SET and its test words stay names there).
+STRUCPP_KEYWORDS = frozenset({
+    "THIS", "SUPER", "REF", "DREF", "NULL", "POINTER", "REF_TO", "REFERENCE_TO", "METHOD", "END_METHOD",
+    "PROPERTY", "END_PROPERTY", "END_GET", "END_SET", "INTERFACE", "END_INTERFACE", "EXTENDS", "IMPLEMENTS",
+    "PUBLIC", "PRIVATE", "PROTECTED", "VAR_INST",
+})
+
+
+@lru_cache(maxsize=1)
+def strucpp_library_functions() -> frozenset[str]:
+    """The functions of the libraries STruC++ loads unless told not to (its IEC functions, OSCAT Basic,
+    PLCopen motion): names only, listed in data/strucpp_library_functions.txt."""
+    p = DATA / "strucpp_library_functions.txt"
+    return frozenset(line.strip().upper() for line in p.read_text().splitlines()
+                     if line.strip() and not line.startswith("#"))
+
+
+def strucpp_keyword(name: str, text: str, pos, diags: Diagnostics) -> None:
+    if name.upper() in STRUCPP_KEYWORDS:
+        report(diags, "strucpp-keyword", pos, "openplc-v4", name=text or name)
+
+
+def strucpp_names(pou: A.Pou, prog, diags: Diagnostics) -> None:
+    """A POU's name and variables against STruC++'s keywords; a function block instance against the functions
+    of its libraries (STruC++ resolves `rnd(...)` to OSCAT's RND before the instance rnd)."""
+    strucpp_keyword(pou.name, pou.text, pou.pos, diags)
+    functions = strucpp_library_functions()
+    for d in pou.decls():
+        strucpp_keyword(d.name, d.text, d.pos, diags)
+        spec = d.spec.name.upper() if isinstance(d.spec, A.TypeRef) else None
+        block = prog.pous.get(spec) if spec else None
+        if d.name.upper() in functions and getattr(block, "kind", None) == "FUNCTION_BLOCK":
+            report(diags, "strucpp-library-call", d.pos, "openplc-v4", name=d.text or d.name,
+                   function=d.name.upper())
+
+
+def strucpp_type_names(td: A.TypeDecl, diags: Diagnostics) -> None:
+    strucpp_keyword(td.name, td.text, td.pos, diags)
+    if isinstance(td.spec, A.EnumSpec):
+        for k, (v, pos, _x) in enumerate(td.spec.values):
+            strucpp_keyword(v, td.spec.texts[k] if k < len(td.spec.texts) else v, pos, diags)
+    if isinstance(td.spec, A.StructSpec):
+        for m in td.spec.members:
+            strucpp_keyword(m.name, m.text, m.pos, diags)
