@@ -108,6 +108,8 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
     "strucpp-library-call": ("FUNCTION_BLOCK FB_Die\nVAR_INPUT faces : INT; END_VAR\nVAR_OUTPUT v : INT; END_VAR\n"
                              "v := faces;\nEND_FUNCTION_BLOCK\n" +
                              prog("VAR rnd : FB_Die; x : INT; END_VAR", "rnd(faces := 6);\nx := rnd.v;"), "openplc-v4"),
+    "strucpp-and-guard": (prog("VAR a : ARRAY[1..3] OF INT; k : INT; b : BOOL; END_VAR", "b := k > 0 AND a[k] = 0;"),
+                          "openplc-v4"),
 }
 
 

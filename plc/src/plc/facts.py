@@ -115,6 +115,10 @@ RULES: dict[str, Rule] = {
     "strucpp-library-call": Rule("function block instance '{name}' is named like the function {function} of the "
                                  "libraries STruC++ (OpenPLC v4) loads: it calls the function, not the instance",
                                  "choose another name", "openplc-v4"),
+    "strucpp-and-guard": Rule("STruC++ (OpenPLC v4) evaluates both operands of {op}: {array}[...] is read even when "
+                              "the left operand already decides, and an index out of its bounds stops the program "
+                              "there (an exception), where MATIEC and plc skip the read",
+                              "read {array}[...] inside an IF that checks {index} first", "openplc-v4"),
 }
 
 

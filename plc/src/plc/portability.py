@@ -88,6 +88,7 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
                 if v4:
                     strucpp_names(item, prog, diags)
+                    strucpp_and_guards(item, diags)
                 if not errors_inside(item, diags):   # a syntax error may have emptied a statement list
                     statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
                 if item.kind == "FUNCTION" and not item.blocks:
@@ -321,6 +322,29 @@ def strucpp_names(pou: A.Pou, prog, diags: Diagnostics) -> None:
         if d.name.upper() in functions and getattr(block, "kind", None) == "FUNCTION_BLOCK":
             report(diags, "strucpp-library-call", d.pos, "openplc-v4", name=d.text or d.name,
                    function=d.name.upper())
+
+
+ORDERING = ("<", "<=", ">", ">=")
+
+
+def strucpp_and_guards(pou: A.Pou, diags: Diagnostics) -> None:
+    """`k > 0 AND a[k] = 0`: STruC++ writes AND and OR as C++ '&' and '|' and reads arrays with a bounds-checked
+    at(), so an element whose index the left operand compares to a bound is read anyway, and throws when out of
+    bounds (plc and MATIEC write '&&' and '||')."""
+    seen: set[int] = set()
+    for node in (n for stmt in pou.body for n in A.walk(stmt)):
+        if not (isinstance(node, A.Binary) and node.op in ("AND", "&", "OR")):
+            continue
+        guarded = {side.name for c in A.walk(node.left) if isinstance(c, A.Binary) and c.op in ORDERING
+                   for side in (c.left, c.right) if isinstance(side, A.Name)}       # k > 0, i <= n
+        for index in (n for n in A.walk(node.right) if isinstance(n, A.Index) and id(n) not in seen):
+            names = {n.name for i in index.indices for n in A.walk(i) if isinstance(n, A.Name)}
+            if names & guarded:
+                seen.add(id(index))
+                base = index.base
+                array = (base.text or base.name) if isinstance(base, (A.Name, A.Member)) else "the array"
+                report(diags, "strucpp-and-guard", index.pos, "openplc-v4", op="AND" if node.op == "&" else node.op,
+                       array=array, index=", ".join(sorted(names & guarded)))
 
 
 def strucpp_type_names(td: A.TypeDecl, diags: Diagnostics) -> None:
