@@ -204,6 +204,37 @@ okFlag := TRUE;
 okFlag := F_NoEno(EN := TRUE, ENO => ok4);
 END_PROGRAM
 
+(* an instance's ENO read after its call, as MATIEC reads it (the C struct's own field) *)
+PROGRAM P_InstEno
+VAR
+    gate : FB_Gate;
+    ran : BOOL;
+    skipped : BOOL := TRUE;
+    cleared : BOOL := TRUE;
+    ranAndPassed : BOOL;
+END_VAR
+gate(EN := TRUE, pass := TRUE);
+ran := gate.ENO;
+ranAndPassed := gate.eno AND gate.q;
+gate(EN := FALSE, pass := TRUE);
+skipped := gate.Eno;
+gate(pass := FALSE);                  (* no EN: the body runs and clears ENO itself *)
+cleared := gate.ENO;
+END_PROGRAM
+
+FUNCTION_BLOCK FB_Gate
+VAR_INPUT
+    pass : BOOL;
+END_VAR
+VAR_OUTPUT
+    q : BOOL;
+END_VAR
+q := pass;
+IF NOT pass THEN
+    ENO := FALSE;
+END_IF;
+END_FUNCTION_BLOCK
+
 FUNCTION_BLOCK FB_Counter
 VAR_INPUT
     k : INT;
@@ -316,6 +347,15 @@ def test_fb_with_en_false_copies_inputs_skips_body_and_copies_outputs(run):
     assert v(run, "P_EnEno.eo") is False
     assert v(run, "P_EnEno.c.n") == 9          # body skipped: initial value kept
     assert v(run, "P_EnEno.cOut") == 9         # outputs still copied out
+
+
+def test_eno_of_an_fb_instance_read_after_its_call(run):
+    # issue: `ok := ctr.ENO;` passed the checker but the C named a field ENO_V that no struct has
+    assert v(run, "P_InstEno.ran") is True
+    assert v(run, "P_InstEno.ranAndPassed") is True
+    assert v(run, "P_InstEno.skipped") is False          # EN := FALSE: body skipped, ENO cleared
+    assert v(run, "P_InstEno.cleared") is False          # the body's own ENO := FALSE
+    assert v(run, "P_InstEno.gate.q") is False
 
 
 def test_function_without_inputs_called_with_en_and_eno_set_in_body(run):

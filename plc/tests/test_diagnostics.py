@@ -99,6 +99,43 @@ def test_assignment_to_an_fb_output_from_outside():
     assert one_error(src) == (7, 3, "cannot assign to output 'done' of an instance from outside")
 
 
+EN_DECL = "'{}' cannot be declared: EN and ENO are the implicit enable input and output of every POU"
+
+
+def test_a_variable_named_en_or_eno_cannot_be_declared():
+    # the issue: VAR_INPUT en was accepted, then fb(en := x) bound the implicit EN and the body never ran.
+    # MATIEC (iec2c) refuses these too; it takes only IEC's spelled-out EN : BOOL := 1 and ENO : BOOL, refused here
+    src = ("FUNCTION_BLOCK FB_A\nVAR_INPUT en : BOOL; END_VAR\nVAR_OUTPUT done : BOOL; END_VAR\ndone := en;\n"
+           "END_FUNCTION_BLOCK\n" + prog("VAR a : FB_A; x : BOOL; END_VAR", "a(en := x);", "P_Main"))
+    assert one_error(src) == (2, 11, EN_DECL.format("en"))
+    src = ("FUNCTION F_A : BOOL\nVAR_INPUT EN : BOOL := TRUE; END_VAR\nVAR_OUTPUT Eno : BOOL; END_VAR\n"
+           "F_A := TRUE;\nEND_FUNCTION\n" + prog("VAR eNo : INT; END_VAR", "", "P_Main"))
+    assert errors(src) == [(2, 11, EN_DECL.format("EN")), (3, 12, EN_DECL.format("Eno")),
+                           (7, 5, EN_DECL.format("eNo"))]
+    cfg = ("CONFIGURATION C\nVAR_GLOBAL En : BOOL; END_VAR\nRESOURCE R ON PLC\n"
+           "TASK t(INTERVAL := T#10ms, PRIORITY := 0);\nPROGRAM i WITH t : P_Main;\nEND_RESOURCE\nEND_CONFIGURATION\n")
+    assert errors(prog("VAR x : INT; END_VAR", "x := 1;", "P_Main") + cfg) == [(6, 12, EN_DECL.format("En"))]
+    # the error stands alone: no portability warning about the same name on top
+    assert [w for w in warnings(src) if "keyword" in w[2]] == []
+
+
+def test_eno_of_an_instance_is_read_not_written_from_outside():
+    fb = "FUNCTION_BLOCK FB_A\nVAR_OUTPUT done : BOOL; END_VAR\ndone := TRUE;\nEND_FUNCTION_BLOCK\n"
+    assert errors(fb + prog("VAR a : FB_A; ok : BOOL; END_VAR", "a(EN := ok);\nok := a.ENO AND a.done;", "P_Main")) \
+        == []
+    # as MATIEC ("Assignment to FB output variable is not allowed")
+    assert one_error(fb + prog("VAR a : FB_A; END_VAR", "a.eno := FALSE;", "P_Main")) == \
+        (7, 3, "cannot assign to output 'eno' of an instance from outside")
+
+
+def test_en_of_an_instance_is_neither_read_nor_written_from_outside():
+    # MATIEC refuses both (a syntax error); and a call without EN := runs the body whatever EN holds
+    fb = "FUNCTION_BLOCK FB_A\nVAR_OUTPUT done : BOOL; END_VAR\ndone := TRUE;\nEND_FUNCTION_BLOCK\n"
+    msg = "EN of an instance cannot be read or written from outside ('{}')"
+    assert errors(fb + prog("VAR a : FB_A; ok : BOOL; END_VAR", "ok := a.En;\na.EN := TRUE;", "P_Main")) == \
+        [(7, 9, msg.format("En")), (8, 3, msg.format("EN"))]
+
+
 def test_assignment_to_the_for_variable_inside_its_loop():
     src = prog("VAR i : INT; END_VAR", "FOR i := 1 TO 3 DO\n    i := 5;\nEND_FOR;")
     assert one_error(src) == (4, 5, "cannot assign to the FOR control variable 'i' inside its loop")
@@ -376,7 +413,7 @@ def test_variable_named_like_a_type():
 
 
 def test_variable_named_like_a_keyword():
-    assert pw(prog("VAR en2 : INT; eno : INT; END_VAR", "en2 := 1;")) == [("portability.var-keyword", 2, 16)]
+    assert pw(prog("VAR en2 : INT; r_edge : INT; END_VAR", "en2 := 1;")) == [("portability.var-keyword", 2, 16)]
 
 
 def test_variable_named_like_a_standard_function():

@@ -91,9 +91,9 @@ def test_rising_and_falling_contacts():
 
 def test_edge_contact_behind_a_contact_samples_the_variable_every_scan():
     # the edge is sensed whatever the power flow on the left (IEC 61131-3 transition-sensing contact)
-    b = Body().left_rail(1).contact(2, "en", 1).contact(3, "a", 2, x=150, edge="rising").coil(4, "q", 3) \
+    b = Body().left_rail(1).contact(2, "enable", 1).contact(3, "a", 2, x=150, edge="rising").coil(4, "q", 3) \
         .right_rail(5, [4])
-    out, _ = scan(b, {"en": [False, True, True], "a": [True, True, True]}, ["q"])
+    out, _ = scan(b, {"enable": [False, True, True], "a": [True, True, True]}, ["q"])
     assert out["q"] == [False, False, False]
 
 

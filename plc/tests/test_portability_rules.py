@@ -93,7 +93,7 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
     "type-alias": ("TYPE E_A : (One, Two); T_B : E_A; END_TYPE\n", None),
     "type-order": ("TYPE ST_Outer : STRUCT inner : ST_Inner; END_STRUCT; END_TYPE\n"
                    "TYPE ST_Inner : STRUCT a : INT; END_STRUCT; END_TYPE\n", None),
-    "var-keyword": (prog("VAR eno : INT; END_VAR", "eno := 1;"), None),
+    "var-keyword": (prog("VAR r_edge : INT; END_VAR", "r_edge := 1;"), None),
     "var-library-block": (prog("VAR ramp : INT; END_VAR", "ramp := 1;"), None),
     "var-own-type-name": (prog("VAR tOn : TON; END_VAR", "tOn(IN := TRUE, PT := T#1s);"), None),
     "var-std-name": (prog("VAR limit : INT; END_VAR", "limit := 1;"), None),

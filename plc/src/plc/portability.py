@@ -253,6 +253,8 @@ def name_clash(name: str, prog, lib) -> str | None:
 
 def var_name(d: A.VarDecl, prog, diags: Diagnostics, lib) -> None:
     name = d.name
+    if name in ("EN", "ENO"):
+        return          # the scopes pass refuses the declaration (an error): no warning on top
     if not ident_shape(name, d.text, d.pos, diags):
         return
     clash = name_clash(name, prog, lib)

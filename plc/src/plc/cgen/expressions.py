@@ -94,6 +94,8 @@ class ExpressionGen(GenBase):
         raise InternalError(e.pos, f"name {e.name} reached the C generator unresolved")
 
     def x_Member(self, e: A.Member) -> str:
+        if e.name == "ENO" and isinstance(T.resolve_base(e.base.ty), T.PouType):
+            return f"{self.ex(e.base)}.ENO"      # the implicit field of every instance (no variable is named ENO)
         return f"{self.ex(e.base)}.{cid(e.name)}"
 
     def x_Index(self, e: A.Index) -> str:

@@ -224,7 +224,12 @@ class ExpressionTyping(Pass):
             return m.type
         if isinstance(b, T.PouType):
             v = b.scope.lookup(e.name) if b.scope else None
-            if e.name in ("ENO", "EN") and v is None:
+            if e.name == "ENO" and v is None:
+                return T.BOOL                               # the instance's implicit ENO, read as MATIEC reads it
+            if e.name == "EN" and v is None:
+                # MATIEC refuses it (a syntax error) and a call without EN := runs the body whatever it holds
+                self.err(e.pos, f"EN of an instance cannot be read or written from outside ('{e.text}')",
+                         "EN belongs to a call (EN := ...); keep the value you pass in a variable of your own")
                 return T.BOOL
             if v is None:
                 self.err(e.pos, f"{b.name} has no member '{e.text}'",

@@ -67,7 +67,11 @@ class ScopePass(Pass):
             first = scope.vars[d.name]
             self.err(d.pos, f"duplicate variable '{d.text}'", f"first declared at {first.pos}")
             return None
-        if pou is not None and d.name == pou.name and pou.kind == "FUNCTION":
+        if d.name in ("EN", "ENO"):
+            # a VAR_INPUT en could never be passed: fb(en := x) sets the implicit EN (and x FALSE skips the body)
+            self.err(d.pos, f"'{d.text}' cannot be declared: EN and ENO are the implicit enable input and output "
+                     "of every POU", "rename the variable")
+        elif pou is not None and d.name == pou.name and pou.kind == "FUNCTION":
             self.err(d.pos, f"'{d.text}' is the name of the FUNCTION itself (its result)")
             return None
         t = self.type_pass.type_spec(d.spec)

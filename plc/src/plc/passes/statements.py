@@ -105,7 +105,8 @@ class StatementPass(Pass):
             if isinstance(root, A.Member) and isinstance(T.resolve_base(root.base.ty or T.ERROR), T.PouType):
                 inst_t = T.resolve_base(root.base.ty)
                 member = inst_t.scope.lookup(root.name) if inst_t.scope else None
-                if member is not None and member.section in ("VAR_OUTPUT",):
+                output = member.section == "VAR_OUTPUT" if member is not None else root.name == "ENO"
+                if output:
                     self.err(root.pos, f"cannot {verb} output '{root.text or root.name}' of an instance from outside",
                              "outputs are written by the function block itself")
                 elif member is not None and member.section in ("VAR", "VAR_TEMP", "VAR_EXTERNAL"):
