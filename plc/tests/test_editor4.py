@@ -452,3 +452,31 @@ def test_a_power_flow_loop_and_an_unwired_connector_are_positioned_errors(tmp_pa
     assert re.search(rf"FbdScale\.fbd:{line}:1: error: in FbdScale, node 'con_sum' \(localId \d+\): connector 'Sum' "
                      "has nothing wired into it", err), err
     assert not (tmp_path / "out").exists()
+
+
+def test_editor_v4_reads_the_fixture_project_folder():
+    """Optional: Editor v4's own project reader (project.json schema, POU text parser and its LD/FBD body
+    schemas) on the fixture folder.  OPENPLC_EDITOR_FOLDER_CHECK is a command that takes a project folder and
+    prints, as JSON, "ok" or the error for project.json and, per POU file, the POU's name and variables as the
+    editor reads them (docs/openplc-editor.md)."""
+    cmd = os.environ.get("OPENPLC_EDITOR_FOLDER_CHECK")
+    if not cmd:
+        pytest.skip("OPENPLC_EDITOR_FOLDER_CHECK is not set: Editor v4's project reader is not built here "
+                    "(see docs/openplc-editor.md)")
+    import json
+    import shlex
+    run = subprocess.run([*shlex.split(cmd), str(FIXTURE)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    got = json.loads(run.stdout)
+    assert got.pop("project.json") == "ok"
+    files = sorted(str(p.relative_to(FIXTURE)) for p in (FIXTURE / "pous").rglob("*") if p.is_file())
+    assert sorted(got) == files
+    ours = declared([FIXTURE / "pous"]) | {"LdCounter": None, "FbdScale": None}
+    for rel, pou in got.items():
+        assert isinstance(pou, dict), f"{rel}: {pou}"
+        assert pou["name"] in ours
+        names = sorted(v.split(":")[1] for v in pou["variables"])
+        if ours[pou["name"]] is not None:
+            assert names == ours[pou["name"]], rel
+    assert got["pous/function-blocks/LdCounter.ld"]["rungs"] == 3
+    assert got["pous/function-blocks/FbdScale.fbd"]["nodes"] == 15
