@@ -17,6 +17,7 @@ rewrites one of our exports into the shape it reads, and says what that costs:
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from lxml import etree
@@ -257,6 +258,15 @@ def adapt(root) -> list[Problem]:
             # the schema's order in a configuration: resources, then globalVars
             c.append(target)
     return notes
+
+
+DECL = re.compile(r"^(?:data type|POU|configuration|resource|task|structure) (\w+)")
+
+
+def declaration_of(p: Problem) -> str:
+    """The name of the declaration a problem is about ('' when it names none)."""
+    m = DECL.match(p.message)
+    return m.group(1) if m else ""
 
 
 def for_editor(data: bytes) -> tuple[bytes, list[Problem], list[Problem]]:

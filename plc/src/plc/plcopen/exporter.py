@@ -295,6 +295,28 @@ def export(paths: list[str], diags: Diagnostics) -> bytes | None:
     return etree.tostring(root, xml_declaration=True, encoding="utf-8", pretty_print=True)
 
 
+def declaration_positions(paths: list[str]) -> dict[str, Pos]:
+    """Upper-case name -> source position of every type, POU, configuration, resource and task in the ST
+    sources (for the notes and errors of --for openplc-editor)."""
+    out: dict[str, Pos] = {}
+    for f in collect_files(paths):
+        if f.suffix.lower() != ".st":
+            continue
+        for item in parse(read_source(f), display_name(f), Diagnostics()).items:
+            if isinstance(item, A.TypeBlock):
+                for td in item.decls:
+                    out.setdefault(td.name.upper(), td.pos)
+            elif isinstance(item, A.Pou):
+                out.setdefault(item.name.upper(), item.pos)
+            elif isinstance(item, A.Configuration):
+                out.setdefault(item.name.upper(), item.pos)
+                for r in item.resources:
+                    out.setdefault(r.name.upper(), r.pos)
+                    for t in r.tasks:
+                        out.setdefault(t.name.upper(), t.pos)
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="plc export", description="Write the ST project in another format.")
     sub = p.add_subparsers(dest="format", metavar="{plcopen}")
@@ -334,10 +356,13 @@ def main(argv: list[str]) -> int:
         return EXIT_FINDINGS
     if args.reader == "openplc-editor":
         data, notes, lost = editor4xml.for_editor(data)
+        where = declaration_positions(paths) if notes or lost else {}
         for n in notes if not args.quiet else []:
-            print(f"plc export: note: {n.message}", file=sys.stderr)
+            pos = where.get(editor4xml.declaration_of(n).upper())
+            print(f"{pos}: note: {n.message}" if pos else f"plc export: note: {n.message}", file=sys.stderr)
         for p in lost:
-            print(f"plc export: error: {args.out}:{p.line}: {p.message}", file=sys.stderr)
+            pos = where.get(editor4xml.declaration_of(p).upper())
+            print(f"{pos}: error: {p.message}" if pos else f"plc export: error: {p.message}", file=sys.stderr)
         if lost:
             print("plc export: nothing written (Editor v4 would lose what is listed above)", file=sys.stderr)
             return EXIT_FINDINGS
