@@ -148,7 +148,7 @@ def test_a_parse_result_from_the_cache_is_the_parse_with_its_diagnostics(tmp_pat
             assert [d.render() for d in diags.items] == [d.render() for d in fresh.items]
     assert any(d.severity == "error" for d in fresh.items)      # the bad file's error is reported on a hit too
     # damaged: one byte of the payload changed; misplaced: another file's entry under this key
-    key = buildcache.sha256("parse", buildcache.toolchain_digest(), "f.st", TWICE, "True")
+    key = buildcache.sha256("parse", buildcache.toolchain_digest(), "f.st", TWICE)
     path = cache._path("parse", key, "")
     data = bytearray(path.read_bytes())
     data[-5] ^= 0xFF
@@ -157,7 +157,7 @@ def test_a_parse_result_from_the_cache_is_the_parse_with_its_diagnostics(tmp_pat
     good = repr(parse_text(TWICE, "f.st", Diagnostics()))
     assert repr(cache.parsed(TWICE, "f.st", Diagnostics(), parse_text)) == good
     assert cache.misses == misses + 1
-    other = buildcache.sha256("parse", buildcache.toolchain_digest(), "f.st", bad, "True")
+    other = buildcache.sha256("parse", buildcache.toolchain_digest(), "f.st", bad)
     path.write_bytes(cache._path("parse", other, "").read_bytes())
     assert repr(cache.parsed(TWICE, "f.st", Diagnostics(), parse_text)) == good
     assert cache.misses == misses + 2

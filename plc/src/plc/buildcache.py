@@ -14,11 +14,11 @@ Entries are written to a temporary file and renamed, so a build stopped half-way
 """
 from __future__ import annotations
 
-import ast as pyast
 import gc
 import hashlib
 import os
 import pickle
+import re
 import subprocess
 import sys
 import tempfile
@@ -69,13 +69,17 @@ def parser_sources() -> list[Path]:
         if f in seen or not f.is_file():
             continue
         seen.add(f)
-        for node in pyast.walk(pyast.parse(f.read_text(), str(f))):
-            if isinstance(node, pyast.ImportFrom) and node.level == 1:
-                base = package.joinpath(*node.module.split(".")) if node.module else package
-                names = [base / a.name for a in node.names] + ([base] if node.module else [])
-                for name in names:
-                    todo += [name.with_suffix(".py"), name / "__init__.py"]
+        for module, names in RELATIVE_IMPORT.findall(f.read_text()):
+            base = package.joinpath(*module.split(".")) if module else package
+            paths = [base / n for n in re.findall(r"\w+", re.sub(r"\bas\s+\w+", "", names))]
+            for path in paths + ([base] if module else []):
+                todo += [path.with_suffix(".py"), path / "__init__.py"]
     return sorted(seen)
+
+
+# `from .module import a, b as c` and `from . import (a, b)` at the start of a line (a regular expression, not
+# the ast module: this runs in every command, and parsing the sources costs more than the lines it finds)
+RELATIVE_IMPORT = re.compile(r"^[ \t]*from[ \t]+\.(?!\.)([\w.]*)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)", re.M)
 
 
 class Cache:
@@ -122,7 +126,9 @@ class Cache:
     # -------------------------------------------------------------- parsing --
     def parsed(self, text: str, filename: str, diags: Diagnostics, parse_fn):
         """parse_fn(text, filename, diags) through the cache: the tree, its diagnostics added to `diags`."""
-        key = sha256("parse", toolchain_digest(), filename, text, str(diags.portability))
+        # the lexer and the parser record portability facts on the tree, never a warning: one entry serves
+        # every Diagnostics setting
+        key = sha256("parse", toolchain_digest(), filename, text)
         payload = self.load("parse", key)
         if payload is not None:
             enabled = gc.isenabled()

@@ -188,7 +188,8 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
         result.files.append(parse(text, name, diags))
     prog = analyze(result.files, diags, builtins, test_build=test_build)
     result.program = prog
-    lint(result.files, prog, diags, builtins, target=target)
+    if diags.portability:       # the portability pass reports warnings only, through Diagnostics.portable
+        lint(result.files, prog, diags, builtins, target=target)
     if len(prog.configs) > 1:
         for c in prog.configs[1:]:
             diags.error(c.decl.pos, "only one CONFIGURATION per build",

@@ -76,7 +76,9 @@ def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, 
     if cases.diags.has_errors():
         print_diagnostics(CompileResult(cases.diags, cases.sources), quiet=True)
         raise TestBuildError(len(cases.diags.errors))
-    res = compile_sources([*src, *paths], test_build=True, extra_texts=cases.extra_texts(), generate=False)
+    # errors only (warnings are plc check's business): no portability pass
+    res = compile_sources([*src, *paths], test_build=True, extra_texts=cases.extra_texts(), generate=False,
+                          portability=False)
     cases.remap(res.diags, res.sources)
     untabled(res, cases)
     print_diagnostics(res, quiet=True)   # errors only: warnings are `plc check`'s business
