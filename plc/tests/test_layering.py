@@ -187,7 +187,7 @@ def test_the_application_registers_its_commands_and_checks_through_the_hook():
     from plc import extensions
     ext = extensions.load()
     assert any(s.startswith("atc (atc.plugin:register)") for s in ext.sources)
-    assert set(ext.commands) == {"seq", "map", "host", "deploy", "hmi"}
+    assert set(ext.commands) == {"seq", "map", "host", "tools", "deploy", "hmi"}
     assert ext.preflight and ext.run_setup and ext.parsers
 
 

@@ -15,7 +15,8 @@ from atc.map.generate import drift, load_and_check, outputs, write
 
 REPO = Path(__file__).resolve().parents[2]
 GENERATED = ["hmi_tags", "machines/default/machine.toml", "configs/sequences", "configs/linuxcnc/atc_mb2hal.ini",
-             "configs/linuxcnc/atc_iov2.hal", "configs/linuxcnc/atc_io.hal", "project.toml", "docs/register-map.md"]
+             "configs/linuxcnc/atc_iov2.hal", "configs/linuxcnc/atc_io.hal", "project.toml", "docs/register-map.md",
+             "configs/openplc-v4"]
 
 
 @pytest.fixture
@@ -185,7 +186,7 @@ def test_hal_pins_are_iov2_pins_in_the_right_direction(project):
 def test_host_bits_for_mb2hal_must_be_contiguous(project):
     edit(project / "modbus_map" / "map.toml", 'hal = "iocontrol.0.start-change"\n', '')
     one_error(check(project), "coil 402 lies inside the host bits that mb2hal writes in one FC15 transaction "
-              "(400..409) but is StartChange")
+              "(400..410) but is StartChange")
 
 
 def test_a_read_whose_pin_names_line_linuxcnc_would_cut_is_an_error(project):
@@ -197,8 +198,8 @@ def test_a_read_whose_pin_names_line_linuxcnc_would_cut_is_an_error(project):
 def test_host_command_coils_own_their_bytes(project):
     """OpenPLC v3 applies FC15 by whole bytes: a host's write rewrites every coil of the byte."""
     path = project / "modbus_map" / "map.toml"
-    edit(path, 'name = "SimEStop"\ntable = "coil"\naddress = 417', 'name = "SimEStop"\ntable = "coil"\naddress = 410')
-    one_error(check(project), "SimEStop: coil 410 shares byte 51 with coils mb2hal writes")
+    edit(path, 'name = "SimEStop"\ntable = "coil"\naddress = 417', 'name = "SimEStop"\ntable = "coil"\naddress = 411')
+    one_error(check(project), "SimEStop: coil 411 shares byte 51 with coils mb2hal writes")
 
 
 def test_settle_time_must_cover_an_mb2hal_pass(project):

@@ -1,6 +1,7 @@
 """The Logosol limit of 50 pockets has one home, atc.machine.MAX_POCKETS; the ST and the map, which cannot import it
 (MATIEC takes no constant as an array bound), are checked against it here: the T_PocketTable type, every
-MaxPockets constant (and RetainedWords = the map's retained INT words: 5 + MaxPockets), the map's PocketTool series,
+MaxPockets constant (and RetainedWords = the map's retained INT words: 5 + MaxPockets of the pocket table, then the
+tool table's row count + 7 columns of MaxPockets), the map's PocketTool and Table* series,
 the sequences' tool limit.
 No pocket table of the application is declared with a literal bound.  The ST is read parsed (plc.parser): a
 declaration counts, a comment or a string does not."""
@@ -64,7 +65,7 @@ def test_the_pocket_table_type_has_the_limit(trees):
 def test_every_max_pockets_constant_agrees(trees):
     rmap = tomllib.loads((REPO / "modbus_map" / "map.toml").read_text())
     retained_ints = [s["name"] for s in rmap["signal"] if s.get("retained") and s["type"] == "INT"]
-    assert len(retained_ints) == 5 + MAX_POCKETS, retained_ints
+    assert len(retained_ints) == 5 + MAX_POCKETS + 1 + 7 * MAX_POCKETS, retained_ints
     found = int_constants(trees, "MaxPockets")
     assert len(found) >= 8, found
     assert {k: v for k, v in found.items() if v != MAX_POCKETS} == {}
@@ -93,4 +94,8 @@ def test_the_map_and_the_sequences_follow_the_limit():
     rmap = tomllib.loads((REPO / "modbus_map" / "map.toml").read_text())
     series = sorted(int(s["name"][len("PocketTool"):]) for s in rmap["signal"] if s["name"].startswith("PocketTool"))
     assert series == list(range(1, MAX_POCKETS + 1))
+    for column in ("TableTool", "TablePocket", "TableGroup", "TableLife", "TableUsedMin", "TableUsedSec", "TableFlags"):
+        rows = sorted(int(s["name"][len(column):]) for s in rmap["signal"]
+                      if s["name"].startswith(column) and s["name"][len(column):].isdigit())
+        assert rows == list(range(1, MAX_POCKETS + 1)), column
     assert MAX_TOOLS == MAX_POCKETS

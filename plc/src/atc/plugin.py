@@ -16,6 +16,8 @@ def register(ext: Extensions) -> None:
     ext.command("seq", "check and compile tool-change sequences (plc seq --help)", "atc.seq.cli:main")
     ext.command("map", "check the register map and generate from it (plc map --help)", "atc.map.cli:main")
     ext.command("host", "CNC host client: plc host \"T5 M6\" (plc host --help)", "atc.host.cli:main")
+    ext.command("tools", "the PLC's tool table: list, set, reset, clear, load/export .tbl (plc tools --help)",
+                "atc.tools:main")
     ext.command("deploy", "bundle for OpenPLC (plc deploy openplc), install and upgrade our soft-PLC as a "
                 "systemd service (plc deploy service|upgrade|rollback)", "atc.deploy:main")
     ext.command("hmi", "the live toolchanger page in a browser (plc hmi --help)", "atc.hmi.server:main")

@@ -359,10 +359,18 @@ class Session:
             return self._ended_by_another_host("ToolChange")
         self.tags.write(ToolChange=False)
         self.wait(lambda s: not s["ToolChanged"], self.timeouts.ack_drop, "tool-changed to drop")
+        took = time.monotonic() - t0
+        asked = tool
+        if self.tags.has("PreparedTool"):
+            # the PLC's tool table took a sister of a worn tool (docs/tools.md): the CNC now holds that one, as
+            # LinuxCNC's remap says with M61 Q<PreparedTool>, and uses its offsets
+            tool = int(self.tags.get("PreparedTool")) or tool
         self.tool_number, self.prepared = tool, None
         self.tags.write(ToolNumber=tool)
         plc_tool = int(self.tags.get("ToolInSpindle"))
-        text = f"M6: tool {tool} in spindle after {time.monotonic() - t0:.2f} s"
+        text = f"M6: tool {tool} in spindle after {took:.2f} s"
+        if tool != asked:
+            text = f"M6: T{asked} is worn out: its sister T{tool} in spindle after {took:.2f} s (the PLC's tool table)"
         if plc_tool != tool:
             return Outcome(False, text + f", but the PLC reports tool {plc_tool}", changed=True)
         return Outcome(True, text, changed=True)
