@@ -30,8 +30,9 @@ from plc import driver, runtime
 from plc.hmi.monitor import Monitor
 from plc.modbus import ModbusClient
 from atc.host.session import Session, Timeouts
-from atc.host.tags import load_map
+from atc.host.tags import Tags, load_map
 from atc.runsetup import runtime_setup
+from atc.tools import Row, Table
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "build" / "artifacts"
@@ -129,7 +130,7 @@ def wait_page(b, predicate, timeout: float, what: str):
     return h.wait_until(lambda: predicate(b), timeout, what, step=0.05)
 
 
-def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_without_token(plant):
+def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_without_token(plant, tmp_path):
     url = plant["url"]
     b = browser()
     try:
@@ -171,6 +172,21 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
         assert any("AtcGetting" in s[4] for s in seen), "the changer state by name"
         current = b.find_element(By.CSS_SELECTOR, ".pocket.current")
         assert current.get_attribute("data-pocket") == "3"
+
+        # --- the tool table (docs/tools.md): every tool with its time left; a worn tool marked there and on the ring
+        wait_page(b, lambda b: len(b.find_elements(By.CSS_SELECTOR, "#tools tbody tr")) == 6, 10, "the tool table")
+        assert not b.find_elements(By.CSS_SELECTOR, ".pocket.worn")
+        edits = Table(Tags(rmap, client), tmp_path / "audit.log")
+        assert edits.edit(1, 5, "set T5 worn", Row(5, 5, 5, life=1, used_min=1)) == 1
+        assert edits.edit(1, 4, "set T4 with time left", Row(4, 4, 4, life=2, used_min=1, used_sec=30)) == 1
+        wait_page(b, lambda b: b.find_elements(By.CSS_SELECTOR, "#tools tr.worn[data-tool='5']"), 10,
+                  "T5 marked worn in the tool table")
+        assert b.find_elements(By.CSS_SELECTOR, ".pocket.worn[data-pocket='5']"), "pocket 5 marked worn"
+        row4 = [td.text for td in b.find_elements(By.CSS_SELECTOR, "#tools tr[data-tool='4'] td")]
+        assert row4[:5] == ["T4", "4", "-", "2 min", "0:30"], row4
+        assert len(b.find_elements(By.CSS_SELECTOR, ".pocket.worn")) == 1
+        assert edits.edit(2, 5, "reset T5", None) == 1
+        wait_page(b, lambda b: not b.find_elements(By.CSS_SELECTOR, ".pocket.worn"), 10, "T5 reset: no worn mark")
         session.stop()
         client.close()
 
