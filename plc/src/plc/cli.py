@@ -16,7 +16,7 @@ from pathlib import Path
 
 from . import __version__, buildcache, extensions, retainfile, runtime, testrunner
 from .diagnostics import InternalError
-from .driver import GeneratedCError, UserError, compile_c, compile_sources, print_diagnostics
+from .driver import GeneratedCError, UserError, compile_c, compile_sources, paused_gc, print_diagnostics
 from .project import add_view_options, choose_view, project_root, refused_by_preflight, where
 from .project import run_config as project_run_config
 
@@ -41,7 +41,8 @@ def use_project_cache(root: Path | None) -> None:
 
 def cmd_build(args) -> int:
     use_project_cache(project_root())
-    res = compile_sources(args.paths, portability=not args.no_portability, target=args.target)
+    with paused_gc():
+        res = compile_sources(args.paths, portability=not args.no_portability, target=args.target)
     print_diagnostics(res, quiet=args.quiet)
     if not res.ok:
         print(f"build failed: {len(res.diags.errors)} error(s)", file=sys.stderr)
@@ -88,9 +89,10 @@ def cmd_run(args) -> int:
         raise UserError("no ST sources given and no project st_src/ found from here")
     in_project = root is not None and all(_inside(p, root) for p in paths)
     use_project_cache(root)
-    if in_project and refused_by_preflight(root, "plc run"):
-        return 1
-    res = compile_sources(paths, portability=False)
+    with paused_gc():
+        if in_project and refused_by_preflight(root, "plc run"):
+            return 1
+        res = compile_sources(paths, portability=False)
     print_diagnostics(res, quiet=True)
     if not res.ok:
         print(f"plc run: the program does not compile ({len(res.diags.errors)} error(s))", file=sys.stderr)

@@ -24,7 +24,7 @@ from pathlib import Path
 from . import buildcache, testcases
 from .codegen import generate_units
 from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, compile_units, content_hash,
-                     print_diagnostics)
+                     paused_gc, print_diagnostics)
 from .project import add_view_options, project_root, refused_by_preflight
 from .resources import RUNTIME_SRC
 
@@ -246,17 +246,18 @@ def cmd_test(args) -> int:
     build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
     # the project's build cache (parse results, objects), shared with plc build and plc run; else the build dir's
     buildcache.use(root / buildcache.CACHE_DIR if root is not None else build_dir / "cache")
-    if root is not None and args.src is None and refused_by_preflight(root, "plc test"):
-        return 2        # the project is not ready (stale generated files): no test ran, so no test count
-    t0 = time.perf_counter()
-    try:
-        cases = testcases.load(paths)
-        res, exe = build_tests(paths, src, build_dir, args.quiet, cases=cases)
-    except TestBuildError as e:
-        print(f"plc test: the tests do not compile ({e.args[0]} error(s))", file=sys.stderr)
-        print("0 passed, 1 failed")
-        return 1
-    t_build = time.perf_counter() - t0
+    with paused_gc():
+        if root is not None and args.src is None and refused_by_preflight(root, "plc test"):
+            return 2        # the project is not ready (stale generated files): no test ran, so no test count
+        t0 = time.perf_counter()
+        try:
+            cases = testcases.load(paths)
+            res, exe = build_tests(paths, src, build_dir, args.quiet, cases=cases)
+        except TestBuildError as e:
+            print(f"plc test: the tests do not compile ({e.args[0]} error(s))", file=sys.stderr)
+            print("0 passed, 1 failed")
+            return 1
+        t_build = time.perf_counter() - t0
     tests = collect_tests(res, cases)
     selected = [i for i, t in enumerate(tests) if t.runnable]
     if args.k:
