@@ -79,6 +79,7 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
     "subrange-default": (prog("VAR k : INT(1..5); END_VAR", "k := 2;"), None),
     "time-conversion": (prog(OK, "d := TIME_TO_DINT(t);"), None),
     "time-inexact": (prog(OK, "t := t + T#4ms;"), None),
+    "time-syntax": (prog(OK, "t := T#30m500ms;"), None),
     "time-unit": (prog(OK, "t := T#5us;"), None),
     "wstring": (prog("VAR s : STRING; END_VAR", 's := "wide";'), None),
     "empty-body": (prog(OK, "IF b THEN\nEND_IF;"), None),

@@ -72,6 +72,8 @@ RULES: dict[str, Rule] = {
                             "keep durations as TIME and compare TIME values"),
     "time-inexact": Rule("OpenPLC v3 makes T#{text} {openplc} ns, not {exact} ns: its __time_to_timespec truncates "
                          "(x86-64), so a sum of it drifts and a comparison with it can flip", "{hint}"),
+    "time-syntax": Rule("MATIEC rejects the duration T#{text}: its units follow one another (d h m s ms) and each "
+                        "after the first stays in range (h < 24, m and s < 60, ms < 1000)", "write {spelling}"),
     "time-unit": Rule("'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
                       "write fractions of ms, e.g. T#1.5ms"),
     "wstring": Rule("double-quoted WSTRING literals are not supported by OpenPLC"),

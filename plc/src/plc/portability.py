@@ -25,7 +25,7 @@ from .diagnostics import Diagnostics
 from .facts import RULES, Fact, Rule, fact, rule_code  # noqa: F401 (the rules are part of this pass's interface)
 from .resources import DATA
 from .stdfuncs import STD_FUNCS, conversion
-from .timelit import exact_openplc_spelling, openplc_duration_ns
+from .timelit import exact_openplc_spelling, matiec_takes_duration, openplc_duration_ns, portable_spelling
 from .types import ELEMENTARY, GENERIC, EnumType, StructType
 
 
@@ -82,7 +82,7 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
             continue
         if not f.path.lower().endswith(".xml#st"):    # a PLCopen project's types (plcopen.st_name) are
             type_order(f, prog, diags)                   # ordered by the tool that writes its ST, not the XML
-        inexact_durations(f, diags)
+        durations(f, diags)
         for item in f.items:
             if isinstance(item, A.Pou):
                 pou_name(item.name, item.text, item.pos, "POU", lib, diags)
@@ -176,13 +176,22 @@ def type_order(f: A.SourceFile, prog, diags: Diagnostics) -> None:
             seen.add(td.name.upper())
 
 
-def inexact_durations(f: A.SourceFile, diags: Diagnostics) -> None:
-    """TIME literals OpenPLC v3 converts a nanosecond short (timelit.openplc_duration_ns). A TASK's INTERVAL is
-    exempt: iec2c computes the tick from it in integers (T#4ms: common_ticktime__ = 4000000ULL)."""
+def durations(f: A.SourceFile, diags: Diagnostics) -> None:
+    """TIME literals MATIEC's lexer rejects (timelit.matiec_takes_duration), and those OpenPLC v3 converts a
+    nanosecond short (timelit.openplc_duration_ns). A TASK's INTERVAL is exempt from the second: iec2c computes
+    the tick from it in integers (T#4ms: common_ticktime__ = 4000000ULL)."""
     intervals = {id(n.interval) for item in f.items for n in A.walk(item) if isinstance(n, A.TaskDecl)}
     for item in f.items:
         for n in A.walk(item):
-            if not isinstance(n, A.TimeLit) or n.kind != "TIME" or n.value is None or id(n) in intervals:
+            if not isinstance(n, A.TimeLit) or n.kind != "TIME" or n.value is None:
+                continue
+            low = n.text.lower()
+            if "us" in low or "ns" in low:         # the `time-unit` rule's
+                continue
+            if not matiec_takes_duration(n.text):
+                report(diags, "time-syntax", n.pos, text=n.text, spelling=portable_spelling(n.value))
+                continue
+            if id(n) in intervals:
                 continue
             openplc = openplc_duration_ns(n.text)
             if openplc is None or openplc == n.value:

@@ -163,3 +163,38 @@ def ms_literal(ms: int) -> str:
     if all(openplc_duration_ns(f"{ms}ms", p) == ms * 1_000_000 for p in LONG_DOUBLE_BITS):
         return plain
     return exact_openplc_spelling(ms * 1_000_000) or plain
+
+
+# ---- the durations MATIEC's lexer takes (stage1_2/iec_flex.ll of OpenPLC_v3's matiec_src) ------------------------
+# The units follow one another without a gap (d, h, m, s, ms); the first is any integer or fixed-point number, each
+# later one an integer within its unit (h 0..23, m and s 0..59, ms 0..999) and only the last may have a fraction.
+# T#30m500ms (no seconds) and T#1s1500ms are errors there ("invalid value for duration"); T#30m0s500ms is not.
+_INT = r"\d(?:_?\d)*"
+_FIXED = rf"{_INT}\.{_INT}"
+_I59 = r"(?:0_?)*(?:[0-5]_?)?\d"
+_I23 = r"(?:(?:0_?)*(?:[01]_?)?\d|(?:0_?)*2_?[0-3])"
+_I999 = r"\d(?:_?\d)?(?:_?\d)?"
+_MS_X = rf"{_I999}(?:\.{_INT})?ms"
+_S_X = rf"(?:{_I59}s(?:_?{_MS_X})?|{_I59}(?:\.{_INT})?s)"
+_M_X = rf"(?:{_I59}m(?:_?{_S_X})?|{_I59}(?:\.{_INT})?m)"
+_H_X = rf"(?:{_I23}h(?:_?{_M_X})?|{_I23}(?:\.{_INT})?h)"
+_MATIEC_INTERVAL = re.compile(
+    rf"{_INT}ms|{_FIXED}ms|{_INT}s(?:_?{_MS_X})?|{_FIXED}s|{_INT}m(?:_?{_S_X})?|{_FIXED}m"
+    rf"|{_INT}h(?:_?{_M_X})?|{_FIXED}h|{_INT}d(?:_?{_H_X})?|{_FIXED}d", re.IGNORECASE)
+
+
+def matiec_takes_duration(text: str) -> bool:
+    """Whether MATIEC's lexer reads the TIME literal body `text` (after T#, sign included) as a duration."""
+    return _MATIEC_INTERVAL.fullmatch(text.lstrip("+-")) is not None
+
+
+def portable_spelling(ns: int) -> str:
+    """A spelling of the duration `ns` that MATIEC reads: one OpenPLC converts exactly when there is one
+    (exact_openplc_spelling), else plain milliseconds (T#1800500ms, T#2.5ms)."""
+    sign = "-" if ns < 0 else ""
+    exact = exact_openplc_spelling(abs(ns))
+    if exact:
+        return exact.replace("T#", "T#" + sign)
+    whole, part = divmod(abs(ns), 1_000_000)
+    fraction = f".{part:06d}".rstrip("0") if part else ""
+    return f"T#{sign}{whole}{fraction}ms"
