@@ -13,7 +13,7 @@ from pathlib import Path
 from plc.diagnostics import Diagnostics, Pos
 from plc.driver import compile_sources
 
-from . import gen_doc, gen_linuxcnc, gen_st, gen_tags
+from . import gen_doc, gen_linuxcnc, gen_st, gen_tags, gen_v4
 from .check import check
 from .enums import EnumType, st_facts
 from .model import RegisterMap, load
@@ -39,6 +39,7 @@ def load_and_check(map_path: Path, diags: Diagnostics) -> Loaded | None:
         return None
     facts = st_facts(rmap.root / "st_src", rmap.root)
     check(rmap, facts, diags)
+    gen_v4.check(rmap, diags)
     _check_program_file(rmap, diags)
     if not diags.has_errors():
         check_generated_st(rmap, diags)
@@ -104,6 +105,7 @@ def outputs(loaded: Loaded) -> dict[str, str]:
         IOV2_HAL: gen_linuxcnc.hal_file(rmap, "iov2"),
         IO_HAL: gen_linuxcnc.hal_file(rmap, "io"),
         MAP_DOC: gen_doc.register_map_md(rmap, enums),
+        gen_v4.SLAVE_JSON: gen_v4.modbus_slave_json(rmap),
     }
     program = rmap.root / rmap.program_file
     current = program.read_text(encoding="utf-8") if program.is_file() else ""
