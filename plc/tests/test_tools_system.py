@@ -149,8 +149,18 @@ def test_the_probe_in_the_spindle_inhibits_the_spindle(plc):
     assert refused(plc.tools("set", "T1", "--probe")).rstrip().endswith("refused: another tool is the probe tool")
     ok(plc.host("clear", "T5 M6"))
     assert plc.read("SpindleInhibit")["SpindleInhibit"] is True
+    r = plc.host("M3")
+    assert r.returncode == 1, f"exit {r.returncode}\n{r.stdout}\n{r.stderr}"
+    assert "M3: the spindle stays off: the PLC inhibits it (SpindleInhibit: the probe tool T5 is in the spindle)" \
+        in r.stdout
+    assert plc.read("SpindleOn")["SpindleOn"] is False
     ok(plc.host("T0 M6"))
     assert plc.read("SpindleInhibit")["SpindleInhibit"] is False
+    assert "spindle on" in ok(plc.host("M3")).splitlines()
+    assert plc.read("SpindleOn")["SpindleOn"] is True
+    ok(plc.host("T1 M6"))                     # M6 stops the spindle first
+    assert plc.read("SpindleOn")["SpindleOn"] is False
+    ok(plc.host("M4", "M5", "T0 M6"))
 
 
 def test_export_then_load_gives_the_same_table(plc, tmp_path: Path):

@@ -6,6 +6,8 @@
     plc host clear              clear the fault latches (host's and PLC's)
     plc host confirm N          after an interrupted change and `home`: tool N is in the spindle (0 = empty)
     plc host home | status
+    plc host M3 | M4 | M5       spindle on (either way) / off: the PLC counts the spindle tool's time (SpindleOn);
+                                refused while the PLC inhibits the spindle (the probe tool is in it)
     plc host                    interactive prompt
 
 The host serves the PLC's sequence mailbox (MbxHostActive): each MOVEABS, MOVETOEDGE, FEEDRATE, SPINDLE, MESSAGE or
@@ -38,6 +40,7 @@ from .tags import MapError, load_map
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_SKIPPED = 0, 1, 2, 3
 PROMPT_HELP = """  Tn            prepare tool n (pocket n, or the tool table's)
   M6            change to the prepared tool
+  M3, M4 / M5   spindle on / off (the PLC counts the spindle tool's time; refused while it inhibits the spindle)
   T5 M6         both; several commands per line run in order
   abort [N]     emc-abort with reason N (default 8, TASK_ABORT)
   clear         clear the PLC's fault and the host's fault latch
@@ -45,7 +48,8 @@ PROMPT_HELP = """  Tn            prepare tool n (pocket n, or the tool table's)
   confirm N     tool N is in the spindle (0 = empty), when the PLC asks after an interrupted change
   status        tool, pocket, link, states, fault
   quit          leave (Ctrl-D too)"""
-TOKEN = re.compile(r"^(T\d+|M0*6|ABORT|CLEAR|CONFIRM|STATUS|HOME|HELP|QUIT|EXIT|\d+)$", re.IGNORECASE)
+COMMANDS = "Tn, M6, M3, M5, abort [REASON], clear, home, confirm N, status"
+TOKEN = re.compile(r"^(T\d+|M0*[3-6]|ABORT|CLEAR|CONFIRM|STATUS|HOME|HELP|QUIT|EXIT|\d+)$", re.IGNORECASE)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -56,7 +60,8 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="plc host", description="A CNC host for the atc-plc register map: the CNC end of LinuxCNC's "
-                "iov2 protocol over Modbus/TCP. Commands: Tn (prepare tool n), M6 (change), abort [REASON], "
+                "iov2 protocol over Modbus/TCP. Commands: Tn (prepare tool n), M6 (change), M3/M4/M5 (spindle on/off), "
+                "abort [REASON], "
                 "clear, home, confirm N (tool N in the spindle after an interrupted change), status; several per "
                 "call (\"T5 M6\"); without commands an interactive prompt.",
                 epilog="exit status: 0 done, 3 done but a soft fault skipped a change, 1 a command failed, "
@@ -106,10 +111,10 @@ def tokens(words: list[str]) -> list[str]:
     for word in " ".join(words).split():
         for part in re.findall(r"[TtMm]\d+|[A-Za-z]+|\d+", word) or [word]:
             if not TOKEN.match(part):
-                raise ValueError(f"unknown command '{part}' (Tn, M6, abort [REASON], clear, home, confirm N, status)")
+                raise ValueError(f"unknown command '{part}' ({COMMANDS})")
             out.append(part.upper())
         if "".join(re.findall(r"[TtMm]\d+|[A-Za-z]+|\d+", word)) != word:
-            raise ValueError(f"cannot read '{word}' (Tn, M6, abort [REASON], clear, home, confirm N, status)")
+            raise ValueError(f"cannot read '{word}' ({COMMANDS})")
     return out
 
 
@@ -128,8 +133,10 @@ def run_commands(session: Session, words: list[str], pockets: dict[int, int], sa
         if cmd.startswith("T"):
             tool = int(cmd[1:])
             outcome = session.prepare(tool, pockets.get(tool, tool))
-        elif cmd.startswith("M"):
+        elif cmd.startswith("M") and int(cmd[1:]) == 6:
             outcome = session.change()
+        elif cmd.startswith("M"):
+            outcome = session.spindle(int(cmd[1:]) != 5)
         elif cmd == "ABORT":
             reason = 8
             if i < len(todo) and todo[i].isdigit():

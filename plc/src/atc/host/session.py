@@ -344,6 +344,8 @@ class Session:
             if reason is not None:
                 return self._fault_ends_change(reason, refused=False)
         self.wait(lambda s: not s["ToolChanged"], self.timeouts.ack_drop, "tool-changed of the last change to drop")
+        if self.tags.has("SpindleOn") and self.tags.get("SpindleOn"):
+            self.tags.write(SpindleOn=False)          # M6 stops the spindle (LinuxCNC's M6 does)
         self.tags.write(ToolNumber=self.tool_number)
         self.tags.write(ToolChange=True)
         try:
@@ -452,6 +454,18 @@ class Session:
             return Outcome(True, f"abort (emc-reason {emc_reason}): another host's abort, acknowledged by the PLC, "
                            "stopped the changer first")
         return Outcome(True, f"abort (emc-reason {emc_reason}) acknowledged by the PLC")
+
+    def spindle(self, on: bool) -> Outcome:
+        """M3/M4 (on) and M5 (off): the CNC's spindle-on line (SpindleOn), which the PLC's tool life counts; M3 is
+        refused while the PLC inhibits the spindle (SpindleInhibit: the probe tool is in it), as LinuxCNC's
+        spindle.0.inhibit keeps the spindle still."""
+        if not self.tags.has("SpindleOn"):
+            return Outcome(False, "this PLC's register map has no SpindleOn: no spindle line to the PLC")
+        if on and self.tags.has("SpindleInhibit") and self.tags.get("SpindleInhibit"):
+            return Outcome(False, f"M3: the spindle stays off: the PLC inhibits it (SpindleInhibit: the probe tool "
+                                  f"T{int(self.tags.get('ToolInSpindle'))} is in the spindle)")
+        self.tags.write(SpindleOn=on)
+        return Outcome(True, "spindle on" if on else "spindle off")
 
     def clear(self) -> Outcome:
         """Operator clear: the host's latch drops and ClearFault pulses (the PLC clears on its rising edge)."""
