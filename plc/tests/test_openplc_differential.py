@@ -35,11 +35,13 @@ ABORT_REASON = 8              # iov2's emc-reason for a task abort (atc.host.ses
 POCKETS = 6                   # machines/default: pocket n holds tool n
 
 # The script, episode by episode; it repeats until MIN_SCANS have run.  ("abort", tool, n): abort n scans after
-# tool-change rises; ("estop", tool, n): open the simulated E-stop chain n scans after it; ("soft", tool): a
-# prepare of a pocket outside the carousel (soft fault 106, the program goes on).
+# tool-change rises; ("estop", tool, n): open the simulated E-stop chain n scans after it; ("soft", tool): an M6 of a
+# tool in no row of the tool table with a pocket outside the carousel (soft fault 106, the program goes on);
+# ("worn", tool): its row edited worn out (life 1 min, 1 min used), an M6 of it (soft fault 109), the row reset.
 PLAN = [
     ("change", 3), ("change", 5), ("abort", 2, 5), ("change", 2), ("abort", 6, 60), ("change", 6),
-    ("estop", 1, 120), ("change", 1), ("soft", 4), ("change", 4), ("abort", 3, 250), ("change", 3),
+    ("estop", 1, 120), ("change", 1), ("soft", 99), ("change", 4), ("worn", 5), ("change", 5),
+    ("abort", 3, 250), ("change", 3),
     ("estop", 5, 400), ("change", 5), ("abort", 2, 500), ("change", 2), ("estop", 6, 30), ("change", 6),
     ("abort", 1, 700), ("change", 1), ("estop", 4, 650), ("change", 4), ("abort", 6, 120), ("home",),
 ]
@@ -163,15 +165,32 @@ class Host:
             self.abort()
         self.fault()
 
-    def soft_fault(self, tool: int) -> None:
-        """An M6 of a tool whose pocket is outside the carousel: soft fault 106 (BAD_POCKET), change skipped."""
-        self.prepare(tool, POCKETS + 3)
+    def edit_row(self, **values) -> None:
+        """One tool table edit (docs/tools.md): the values, then a rising ToolEditRequest until it is answered."""
+        count = self.out["ToolEditCount"]
+        self.write(ToolEditRequest=0, **{f"ToolEdit{k}": v for k, v in values.items()})
+        self.step()
+        self.write(ToolEditRequest=1)
+        if self.until(lambda s: s["ToolEditCount"] != count, 50) and self.out["ToolEditAnswer"] == 1:
+            self.events["tool table edits"] += 1
+        self.write(ToolEditRequest=0)
+        self.step()
+
+    def worn(self, tool: int) -> None:
+        """A worn tool without a sister: its M6 is refused with soft fault 109, the program goes on."""
+        self.edit_row(Code=1, Row=tool, Tool=tool, Pocket=tool, Group=0, Life=1, UsedMin=1, UsedSec=0, Flags=0)
+        self.soft_fault(tool, tool)
+        self.edit_row(Code=2, Row=tool)
+
+    def soft_fault(self, tool: int, pocket: int = POCKETS + 3) -> None:
+        """An M6 the PLC skips with a soft fault (> 0): a pocket outside the carousel (106), a worn tool (109)."""
+        self.prepare(tool, pocket)
         if self.start_change():
             self.write(ToolNumber=self.out["ToolInSpindle"], ToolChange=1)
             self.until(lambda s: s["ToolChanged"] or s["ToolchangerFault"], 3000)
             self.write(ToolChange=0)
         if self.out["FaultReason"] > 0:
-            self.events["soft faults"] += 1
+            self.events[f"soft faults {self.out['FaultReason']}"] += 1
         self.fault()
 
     def fault(self) -> None:
@@ -221,6 +240,8 @@ class Host:
                     self.interrupted(episode[1], episode[2], estop=kind == "estop")
                 elif kind == "soft":
                     self.soft_fault(episode[1])
+                elif kind == "worn":
+                    self.worn(episode[1])
                 else:
                     self.home()
                     self.events["homings asked"] += 1
@@ -302,6 +323,6 @@ def test_our_build_and_openplc_matiec_agree_scan_for_scan(tmp_path):
     assert ours.events["changes"] >= 20, summary
     assert ours.events["aborts"] >= 10, summary
     assert ours.events["e-stops"] >= 4, summary
-    assert ours.events["soft faults"] >= 1, summary
+    assert ours.events["soft faults 106"] >= 1 and ours.events["soft faults 109"] >= 1, summary
     assert ours.events["recoveries: homed"] >= 1, summary
     assert ours.events == matiec.events, summary
