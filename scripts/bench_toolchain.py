@@ -5,9 +5,17 @@
 - 200 tests x 10,000 scans each through plc test's runner (target <= 5 s wall)
 - plc check of a 500-rung ladder (PLCopen XML, OpenPLC Editor grid rails) against plc check of the ST it
   imports to (baseline, same run): the XML front end's cost (target <= 3x the ST check)
+- the edit loop (issue 33), in a copy of the project: one declaration added to st_src/rotary/F_NextPocket.st,
+  then `plc test -k TieGoes` to its verdict, median of 10 (target <= 1.5 s on a quiet machine), against the
+  cold `plc test` of the same copy and, when IEC2C (and IEC2C_LIB, IEC2C_CINCLUDE: see
+  plc/tests/test_matiec_optional.py) name a MATIEC build, against MATIEC + g++ of the application as OpenPLC
+  builds it (`plc deploy openplc`, iec2c, g++ -std=gnu++11 of Config0.c and Res0.c), all in the same run
+  (target <= 0.25x). The machine's load average is printed with the table: on a busy machine every time grows.
 """
 from __future__ import annotations
 
+import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -195,6 +203,85 @@ def bench_ladder(tmp: Path) -> tuple[float, float, int]:
     return statistics.median(times["xml"]), statistics.median(times["st"]), 500
 
 
+EDITED = Path("st_src") / "rotary" / "F_NextPocket.st"
+EDIT_RUNS = 10
+PLC = [sys.executable, "-m", "plc.cli"]
+
+
+# as a user's shell runs plc: Python keeps the compiled bytecode of the toolchain (some CI shells forbid it)
+USER_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+
+
+def timed(cmd: list[str], cwd: Path, expect: str | None = None) -> float:
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=USER_ENV)
+    elapsed = time.perf_counter() - t0
+    if proc.returncode != 0 or (expect is not None and expect not in proc.stdout):
+        raise SystemExit(f"bench: {' '.join(cmd)} failed in {cwd}:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
+    return elapsed
+
+
+def project_copy(tmp: Path) -> Path:
+    """The project as it is in the work tree, without git, the venv and build output."""
+    copy = tmp / "project"
+    shutil.copytree(ROOT, copy, ignore=shutil.ignore_patterns(".git", ".venv", "build", "__pycache__"))
+    return copy
+
+
+def add_declaration(path: Path, k: int) -> None:
+    """One more local constant in the function's VAR CONSTANT block: its C changes, its interface does not."""
+    text = path.read_text()
+    marker = "VAR CONSTANT\n"
+    assert marker in text, f"{path}: no VAR CONSTANT block to edit"
+    path.write_text(text.replace(marker, f"{marker}    BenchEdit{k} : INT := {k};\n", 1))
+
+
+def bench_edit_loop(tmp: Path) -> dict[str, float]:
+    proj = project_copy(tmp)
+    out = {"cold": timed([*PLC, "test", "-q"], proj, expect=" passed, 0 failed")}
+    select = [*PLC, "test", "-k", "TieGoes"]
+    out["cached"] = statistics.median(timed(select, proj, expect="2 passed, 0 failed") for _ in range(3))
+    edits = []
+    for k in range(EDIT_RUNS):
+        add_declaration(proj / EDITED, k)
+        edits.append(timed(select, proj, expect="2 passed, 0 failed"))
+    out["edit"], out["edit_min"], out["edit_max"] = statistics.median(edits), min(edits), max(edits)
+    matiec = matiec_build(proj, tmp / "matiec")
+    if matiec is not None:
+        out["matiec"] = matiec
+    return out
+
+
+def matiec_build(proj: Path, work: Path) -> float | None:
+    """Median of 3 of iec2c + g++ of the application as OpenPLC builds it, or None (said why) without MATIEC."""
+    iec2c, lib, include = (os.environ.get(v) for v in ("IEC2C", "IEC2C_LIB", "IEC2C_CINCLUDE"))
+    if not (iec2c and lib and include and shutil.which("g++")):
+        print("MATIEC + g++ not measured: set IEC2C, IEC2C_LIB and IEC2C_CINCLUDE (plc/tests/test_matiec_optional.py)"
+              " and install g++", file=sys.stderr)
+        return None
+    program = work / "program.st"
+    work.mkdir()
+    timed([*PLC, "deploy", "openplc", "--out", str(program)], proj)
+    times = []
+    for k in range(3):
+        run = work / f"run{k}"
+        (run / "st_files").mkdir(parents=True)
+        shutil.copy(program, run / "st_files" / "program.st")
+        os.symlink(lib, run / "lib", target_is_directory=True)
+        t0 = time.perf_counter()
+        timed([iec2c, "-f", "-l", "-p", "-r", "-R", "-a", "./st_files/program.st"], run)
+        core = run / "core"
+        core.mkdir()
+        for name in ("POUS.c", "POUS.h", "LOCATED_VARIABLES.h", "VARIABLES.csv", "Config0.c", "Config0.h", "Res0.c"):
+            shutil.move(run / name, core / name)
+        os.symlink(include, core / "lib", target_is_directory=True)
+        (core / "c_blocks.h").write_text("")
+        for unit in ("Config0.c", "Res0.c"):
+            timed(["g++", "-std=gnu++11", "-I", "./lib", "-c", unit, "-w"], core)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
 def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as d:
@@ -211,6 +298,22 @@ def main() -> int:
         rows.append(("plc check, ladder as PLCopen XML", f"{rungs} rungs", f"{xml_s:.3f} s",
                      f"<= 3x baseline ({xml_s / st_s:.1f}x)", xml_s <= 3 * st_s))
         rows.append(("  baseline: the same, imported ST", f"{rungs} rungs", f"{st_s:.3f} s", "", True))
+        loop = bench_edit_loop(tmp)
+        ok = loop["edit"] <= 1.5 and ("matiec" not in loop or loop["edit"] <= 0.25 * loop["matiec"])
+        versus = f", {loop['edit'] / loop['matiec']:.2f}x MATIEC" if "matiec" in loop else ""
+        rows.append(("edit -> verdict (plc test -k TieGoes)", f"1 declaration, median of {EDIT_RUNS}",
+                     f"{loop['edit']:.2f} s", f"<= 1.5 s, <= 0.25x MATIEC ({loop['edit'] / loop['cold']:.2f}x cold"
+                     f"{versus})", ok))
+        rows.append(("  fastest, slowest of the edits", "", f"{loop['edit_min']:.2f}, {loop['edit_max']:.2f} s", "",
+                     True))
+        rows.append(("  no edit (every object cached)", "median of 3", f"{loop['cached']:.2f} s", "", True))
+        rows.append(("  baseline: cold plc test, whole suite", "st_src/ + iec_tests/", f"{loop['cold']:.2f} s", "",
+                     True))
+        if "matiec" in loop:
+            rows.append(("  baseline: MATIEC + g++ (OpenPLC)", "iec2c, g++ -O0, median of 3", f"{loop['matiec']:.2f} s",
+                         "", True))
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"load average (1, 5, 15 min): {load} on {os.cpu_count()} CPUs")
     w = [max(len(str(r[i])) for r in rows + [("benchmark", "size", "measured", "target", "")]) for i in range(4)]
     head = ("benchmark", "size", "measured", "target")
     print("  ".join(h.ljust(w[i]) for i, h in enumerate(head)) + "  ok")
