@@ -126,6 +126,42 @@ def body_error(tmp_path, body: Body | str, **kw) -> str:
     return r.stderr
 
 
+@pytest.mark.parametrize("body, local_id, words", [
+    # the coil's output wired back to its input: a loop of power flow that no block or variable breaks
+    (Body().left_rail(1).contact(2, "a", 1).coil(3, "q", 3).right_rail(4, [3]), 3,
+     "power flow loops back into coil 3 (q): its input is wired to its own output"),
+    (Body().left_rail(1).contact(2, "a", 1).coil(3, "q", 5).coil(5, "q", 3).right_rail(4, [5]), 5,
+     "power flow loops back into coil 5 (q) through coil 3 (q)"),
+    (Body().left_rail(1).coil(3, "q", 6).connector(5, "c", 3).continuation(6, "c"), 3,
+     "power flow loops back into coil 3 (q) through connector 'c' (5), continuation 'c' (6)"),
+    (Body("FBD").connector(5, "c", 6).continuation(6, "c").out_var(7, "q", 6), 6,
+     "the signal loops back into continuation 'c' (6) through connector 'c' (5)"),
+    (Body("FBD").connector(5, "c", None).continuation(6, "c").block(7, "AND", {"IN1": 6, "IN2": 6}, ["OUT"])
+     .out_var(8, "q", (7, "OUT")), 6, "continuation 'c' (6) reads connector 'c' (5), which has nothing wired"),
+], ids=["coil to itself", "two coils", "coil through a connector", "connector to itself", "unwired connector"])
+def test_a_wire_loop_or_an_unwired_connector_is_a_positioned_error_never_a_traceback(tmp_path, body, local_id, words):
+    text = project([pou("FB_X", "functionBlock", body, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
+    r = plc("check", str(write(tmp_path, text)))
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    line = line_of(text, f'localId="{local_id}"')
+    assert f"p.xml:{line}:1: error: in FB_X, element localId {local_id}: {words}" in r.stderr, r.stderr
+
+
+def test_a_chain_deeper_than_the_translation_goes_is_a_positioned_error():
+    """Called as a library (Python's own stack limit, not the one `plc` sets), 5,000 contacts in series go
+    deeper than the recursive translation: an error at the body naming the POU, never a RecursionError."""
+    n = 5000
+    b = Body().left_rail(1)
+    for k in range(n):
+        b.contact(10 + k, "a", 1 if k == 0 else 9 + k, x=k)
+    b.coil(5, "q", 9 + n)
+    text = project([pou("FB_Long", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
+    diags = Diagnostics()
+    assert translate("long.xml", text.encode(), diags) is None
+    assert diags.errors[0].render().startswith(f"long.xml:{line_of(text, '<LD>')}:1: error: in FB_Long: the wiring "
+                                               "of this LD body chains too many elements"), diags.errors[0].render()
+
+
 def test_dangling_reference_is_a_positioned_error(tmp_path):
     b = Body().left_rail(1).contact(2, "a", 99).coil(3, "q", 2).right_rail(4, [3])
     err = body_error(tmp_path, b)
@@ -454,6 +490,17 @@ def _bad_bodies():
         .out_var(3, "n", (2, "OUT")), "functionBlock", 2, "BOOL"
     yield "power-flow loop", Body().left_rail(1).contact(2, "a", 3).contact(3, "a", 2).coil(4, "q", 3), \
         "functionBlock", 3, "loop"
+    yield "coil wired to its own input", Body().left_rail(1).contact(2, "a", 1).coil(3, "q", [2, 3]), \
+        "functionBlock", 3, "power flow loops back into coil 3 (q): its input is wired to its own output"
+    yield "loop through a connector", Body().left_rail(1).coil(3, "q", 5).connector(4, "c", 3).continuation(5, "c"), \
+        "functionBlock", 3, "power flow loops back into coil 3 (q) through connector 'c' (4), continuation 'c' (5)"
+    yield "loop of connectors", Body("FBD").connector(2, "c", 5).continuation(3, "c").connector(4, "d", 3) \
+        .continuation(5, "d").out_var(6, "q", 3), "functionBlock", 3, "the signal loops back into continuation 'c'"
+    yield "continuation of an unwired connector", Body("FBD").connector(2, "c", None).continuation(3, "c") \
+        .block(4, "NOT", {"IN": 3}, ["OUT"]).out_var(5, "q", (4, "OUT")), "functionBlock", 3, \
+        "continuation 'c' (3) reads connector 'c' (2), which has nothing wired into it"
+    yield "two connectors of one name", Body("FBD").in_var(1, "a").connector(2, "c", 1).connector(3, "c", 1, y=40) \
+        .continuation(4, "c").out_var(5, "q", 4), "functionBlock", 4, "any of 2 connectors of that name"
 
 
 @pytest.mark.parametrize("what,body,kind,local_id,words", list(_bad_bodies()), ids=lambda v: str(v)[:30])

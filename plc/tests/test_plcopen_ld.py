@@ -337,6 +337,23 @@ def test_fbd_feedback_reads_the_previous_scan():
     KINDS_COVERED.add("feedback")
 
 
+def test_fbd_loop_of_functions_through_a_connector_reads_the_previous_scan():
+    # NOT's output back into its own input through connector/continuation 'c': no variable on the loop, so
+    # NOT runs as a statement and the continuation reads its output of the previous scan (a toggle)
+    b = Body("FBD").block(2, "NOT", {"IN": 4}, ["OUT"]).connector(3, "c", (2, "OUT")).continuation(4, "c", y=60) \
+        .out_var(5, "x", (2, "OUT"))
+    out, st = scan(b, {"dummy": [False] * 4}, ["x"])
+    assert out["x"] == [True, False, True, False], st
+
+
+def test_a_coil_with_nothing_wired_in_passes_false_on():
+    # coil 4 has no input: the wired OR into coil 5 and the NOT block read FALSE from it
+    b = Body().left_rail(1).contact(2, "a", 1).coil(4, "r", None, y=40).coil(5, "x", [2, 4]) \
+        .block(6, "NOT", {"IN": 4}, ["OUT"], y=80).coil(7, "y", (6, "OUT"), y=80)
+    out, st = scan(b, {"a": [False, True]}, ["x", "y", "r"])
+    assert out["x"] == [False, True] and out["y"] == [True, True] and out["r"] == [False, False], st
+
+
 def test_fbd_in_out_variable():
     b = Body("FBD").in_var(1, "a").in_out_var(2, "mem", 1).block(3, "NOT", {"IN": 2}, ["OUT"]) \
         .out_var(4, "x", (3, "OUT"))

@@ -258,3 +258,89 @@ def networks(elems: list[Element]) -> list[list[Element]]:
         for e in g:
             e.network = i
     return out
+
+
+def _name(e: Element) -> str:
+    """An element as a diagnostic names it: kind, localId and the variable or name it carries."""
+    if e.kind in ("connector", "continuation"):
+        return f"{e.kind} '{e.text}' ({e.id})"
+    if e.kind in ("contact", "coil", "inVariable", "outVariable"):
+        return f"{e.kind} {e.id} ({e.text})"
+    if e.kind == "block":
+        return f"block {e.id} ({e.type_name})"
+    return f"{e.kind} {e.id}"
+
+
+def check_connectors(elems: list[Element]) -> None:
+    """Every continuation reads exactly one connector of its name, and that connector has a wire into it
+    (GraphError at the continuation).  A continuation without any connector is reported where it is read."""
+    by_name: dict[str, list[Element]] = {}
+    for e in elems:
+        if e.kind == "connector":
+            by_name.setdefault(e.text.upper(), []).append(e)
+    for e in elems:
+        if e.kind != "continuation":
+            continue
+        conns = by_name.get(e.text.upper(), [])
+        if len(conns) > 1:
+            raise GraphError(f"continuation '{e.text}' ({e.id}) could read any of {len(conns)} connectors of that "
+                             f"name (localId {', '.join(str(c.id) for c in conns)}): give each connector its own name",
+                             e.line, e.id)
+        if conns and not conns[0].inputs[""].refs:
+            raise GraphError(f"continuation '{e.text}' ({e.id}) reads connector '{conns[0].text}' "
+                             f"({conns[0].id}), which has nothing wired into it", e.line, e.id)
+
+
+def check_loops(elems: list[Element], language: str) -> None:
+    """A wire loop that meets no block and no in-out variable has no value to start from: neither IEC
+    61131-3 nor Beremiz gives it a meaning (a loop through a block reads the block's output of the previous
+    scan, one through an in-out variable reads the variable; docs/ladder.md, "Feedback").  GraphError at
+    the element the loop comes back into.  Iterative, so a long chain of elements cannot exhaust the stack."""
+    by_id = {e.id: e for e in elems}
+    connector = {e.text.upper(): e for e in elems if e.kind == "connector"}
+    readers: set[int] = {r.source for e in elems for p in e.inputs.values() for r in p.refs}
+    readers |= {connector[e.text.upper()].id for e in elems if e.kind == "continuation" and e.text.upper() in connector}
+
+    def upstream(e: Element) -> list[int]:
+        if e.kind in ("block", "inOutVariable"):
+            return []                    # they break a loop
+        if e.kind == "continuation":
+            conn = connector.get(e.text.upper())
+            return [conn.id] if conn is not None else []
+        return [r.source for p in e.inputs.values() for r in p.refs if r.source in by_id]
+
+    state: dict[int, int] = {}           # 1: on the current path, 2: done
+    # elements nothing reads first (coils at the end of a rung, output variables, the right rail), so the
+    # loop is reported where the flow that reaches an output comes back
+    roots = sorted(elems, key=lambda e: e.id in readers)
+    for root in roots:
+        if root.id in state:
+            continue
+        path = [root]
+        stack = [iter(upstream(root))]
+        state[root.id] = 1
+        while stack:
+            nxt = next(stack[-1], None)
+            if nxt is None:
+                state[path.pop().id] = 2
+                stack.pop()
+                continue
+            if state.get(nxt) == 2:
+                continue
+            src = by_id[nxt]
+            if state.get(nxt) == 1:
+                start = next(k for k, p in enumerate(path) if p.id == nxt)
+                raise GraphError(_loop_message(path[start:], language), src.line, src.id)
+            state[nxt] = 1
+            path.append(src)
+            stack.append(iter(upstream(src)))
+
+
+def _loop_message(loop: list[Element], language: str) -> str:
+    """loop[0] is the element the loop comes back into, each next element feeds the one before it."""
+    what = "power flow" if language == "LD" else "the signal"
+    head = loop[0]
+    how = ": its input is wired to its own output" if len(loop) == 1 else \
+        " through " + ", ".join(_name(e) for e in reversed(loop[1:]))
+    return (f"{what} loops back into {_name(head)}{how}; no block or in-out variable on the loop holds a value, "
+            "so the loop has no meaning in IEC 61131-3")

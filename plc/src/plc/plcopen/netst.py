@@ -16,7 +16,7 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
-from .graph import RAILS, Element, GraphError, check_refs, networks, read_elements
+from .graph import RAILS, Element, GraphError, check_connectors, check_loops, check_refs, networks, read_elements
 from .order import OUTPUTS, comments_by_network, order_networks
 from .stexpr import AND_P, ATOM, FALSE, NOT_P, OR_P, SIMPLE, TRUE, Ex, Line, and_, cat, expr_of, join, not_, or_, tag
 from .wiretypes import WireTypes
@@ -91,7 +91,8 @@ class Translator:
     def key_out(self, eid: int, pin: str):
         e = self.by_id[eid]
         if e.kind == "coil":
-            return self.key_in(eid, "")
+            # a coil passes its input flow on; with nothing wired into it that flow is FALSE
+            return self.key_in(eid, "") or ("false", eid, "")
         if e.kind == "continuation":
             conn = self.connectors.get(e.text.upper())
             if conn is None:
@@ -150,6 +151,8 @@ class Translator:
     def compute(self, key, out: list[Line]) -> Ex:
         kind, eid, pin = key
         e = self.by_id[eid]
+        if kind == "false":
+            return FALSE
         if kind == "i":
             vals = [self.value(self.key_out(r.source, r.pin), out) for r in e.inputs[pin].refs]
             return or_(vals) if not self.counting else Ex("?")
@@ -540,6 +543,8 @@ class Translator:
     # -------------------------------------------------------------- translate --
     def run(self) -> BodyST:
         check_refs(self.elems)
+        check_connectors(self.elems)
+        check_loops(self.elems, self.language)
         self.wires = WireTypes(self.elems, self.connectors, self.sig, self.expr_type, STD_RESULT_TYPE)
         self.warnings: list[tuple[str, Element]] = []
         self.reads = Counter()

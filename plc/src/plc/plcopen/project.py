@@ -229,6 +229,11 @@ class ProjectReader:
                 result = translate_body(body, ctx, language)
             except GraphError as e:
                 raise ProjectError(str(e), e.line, name, e.local_id) from None
+            except RecursionError:
+                # loops are refused before translating (graph.check_loops): this is a chain of elements deeper
+                # than the recursive translation goes (some thousands under `plc`, which raises the stack limit)
+                raise ProjectError(f"the wiring of this {language} body chains too many elements one after another "
+                                   "to translate: split the chain with variables", line_of(body), name) from None
             unit.networks = result.networks
             self.warnings += [(msg, e.line, name, e.id) for msg, e in result.warnings]
             if result.decls:
