@@ -54,6 +54,7 @@ def line_of(text: str, needle: str) -> int:
     ("inputs = \"home+pocket\"", "inputs =", "[carousel] inputs: expected one of \"home+pocket\", "),
     ("homing = \"positive\"", "homing =", "counting pockets (inputs = home+pocket) needs homing"),
     ("auto_home = true", "auto_home =", "[changer] auto_home: expected true or false"),
+    ("worn_out = \"soft\"", "worn_out =", "[changer] worn_out: expected one of \"soft\", \"hard\""),
     ("brake_ms = 50", "brake_ms", "[simulation] brake_ms: expected an integer 0..60000, got -5"),
     ("stop_delay_ms = 0", "stop_delay_ms", "[carousel] unknown key 'stop_delay'\n    hint: did you mean "
                                            "'stop_delay_ms'?"),
@@ -65,6 +66,7 @@ def test_each_bad_setting_is_reported_with_its_line(tmp_path, edit, needle, mess
         "inputs = \"home+pocket\"": "inputs = \"home+optical\"",
         "homing = \"positive\"": "homing = \"none\"",
         "auto_home = true": "auto_home = 1",
+        "worn_out = \"soft\"": "worn_out = \"never\"",
         "brake_ms = 50": "brake_ms = -5",
         "stop_delay_ms = 0": "stop_delay = 0",
     }[edit]
@@ -178,6 +180,16 @@ def test_another_machine_file_is_checked_with_the_register_map_as_its_run_would(
 
 
 RACK = ROOT / "machines" / "rack8" / "machine.toml"
+
+
+def test_worn_out_hard_makes_a_worn_tool_without_a_sister_a_hard_refusal(tmp_path):
+    assert "ToolsWornHard := FALSE;" in GENERATED.read_text()            # the shipped machine: soft (109)
+    cfg = tmp_path / "machine.toml"
+    cfg.write_text(CONFIG.read_text().replace('worn_out = "soft"', 'worn_out = "hard"', 1))
+    out = tmp_path / "FB_MachineConfig.st"
+    proc = machine("generate", "--config", str(cfg), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "ToolsWornHard := TRUE;" in out.read_text()
 
 
 def test_a_rack_machine_generates_fixed_pockets_and_its_positions(tmp_path):

@@ -68,6 +68,7 @@ def test_t101_set_into_pocket_3_changes_in_and_out(plc):
     assert "set row 3 T101 P3" in out and out.rstrip().endswith("done")
     assert plc.table()[101]["pocket"] == 3
     assert 3 not in plc.table()
+    assert plc.read("PocketTool3")["PocketTool3"] == 101          # the pocket table relabelled by the edit
     # the host names no pocket for T101 (it would say 101): the PLC takes the pocket from its table
     assert ok(plc.host("clear", "T101 M6")).splitlines()[-1] == "tool 101 in spindle"
     values = plc.read("ToolInSpindle", "PreparedTool", "PocketTool3", "CurrentPocket", "FaultReason")

@@ -121,7 +121,9 @@ SCHEMA = {
         Field("grip_z", Number(-100000, 100000), "the Z where the spindle grips a holder, mm", required=True),
         Field("tolerance", Number(0.001, 100)))),
     "changer": Table((Field("brake_release_ms", Int(0, 10000)), Field("auto_home", Bool()),
-                      Field("tool_sensor", Bool()))),
+                      Field("tool_sensor", Bool()),
+                      Field("worn_out", OneOf(("soft", "hard")), "a worn tool without a sister (docs/tools.md): "
+                            "soft 109, the program goes on; hard -109, it aborts"))),
     "simulation": Table((
         Field("pocket_time_ms", Int(1, 10000)), Field("coast_ms", Int(0, 10000)), Field("skew_scans", Int(0, 100)),
         Field("arm_travel_ms", Int(1, 60000)), Field("collet_ms", Int(1, 60000)), Field("brake_ms", Int(0, 60000)),
@@ -447,6 +449,7 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
            "    BrakeReleaseTime : TIME;            (* brake released this long before a pre-positioning turn *)",
            "    AutoHome : BOOL;                    (* run the Home sequence by itself after power-up *)",
            "    ToolSensor : BOOL;                  (* a tool-present sensor (ToolPresent) decides an unknown tool *)",
+           "    ToolsWornHard : BOOL;               (* a worn tool without a sister is a hard refusal (-109) *)",
            "    FixedPockets : BOOL;                (* a rack (fixed pockets): no carousel, prepares turn nothing *)",
            "    RackPlant : ST_RackPlantConfig;     (* simulated rack, collet and tool-present sensor *)",
            "END_VAR",
@@ -487,6 +490,7 @@ def generate(data: dict, source: str, map_channels: dict[str, int]) -> str:
             f"BrakeReleaseTime := {ms(chg.get('brake_release_ms', 500))};",
             f"AutoHome := {st_bool(chg.get('auto_home', True))};",
             f"ToolSensor := {st_bool(chg.get('tool_sensor', False))};",
+            f"ToolsWornHard := {st_bool(chg.get('worn_out', 'soft') == 'hard')};",
             f"FixedPockets := {st_bool(rack is not None)};"]
     if rack is not None:
         out += [f"RackPlant.positions := {rack['positions']};",
