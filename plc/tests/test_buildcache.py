@@ -174,13 +174,11 @@ def test_the_project_compiles_to_the_same_c_from_cached_parses(tmp_path):
 
     before = buildcache.active()
     try:
-        buildcache.use(None)
-        want = build()
         cache = buildcache.use(tmp_path / "cache")
-        build()
+        want = build()                      # parsed (an empty cache: a text met twice is loaded), and stored
         hits, misses = cache.hits, cache.misses
-        got = build()
-        assert cache.misses == misses and cache.hits - hits > 100
+        got = build()                       # every file loaded
+        assert cache.misses == misses > 100 and cache.hits - hits >= misses
     finally:
         buildcache.use(before.root if before is not None else None)
     assert got == want and (want[0] is not None or want[1])
