@@ -184,9 +184,7 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
         assert b.find_elements(By.CSS_SELECTOR, ".pocket.worn[data-pocket='5']"), "pocket 5 marked worn"
         row4 = [td.text for td in b.find_elements(By.CSS_SELECTOR, "#tools tr[data-tool='4'] td")]
         assert row4[:5] == ["T4", "4", "-", "2 min", "0:30"], row4
-        assert len(b.find_elements(By.CSS_SELECTOR, ".pocket.worn")) == 1
-        assert edits.edit(2, 5, "reset T5", None) == 1
-        wait_page(b, lambda b: not b.find_elements(By.CSS_SELECTOR, ".pocket.worn"), 10, "T5 reset: no worn mark")
+        assert len(b.find_elements(By.CSS_SELECTOR, ".pocket.worn")) == 1     # T5 stays worn: the page resets it
         session.stop()
         client.close()
 
@@ -216,6 +214,12 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
                   "the force ended")
         b.find_element(By.ID, "cmd-clear").click()
         wait_page(b, lambda b: text(b, "fault") == "none", 30, "the fault cleared by the page's command")
+
+        # --- the tool table's reset from the page (token unlocked): T5's time back to 0, audited
+        b.find_element(By.CSS_SELECTOR, "#tools button.tool-reset[data-tool='5']").click()
+        wait_page(b, lambda b: "T5: time used reset to 0" in text(b, "message"), 30, "the reset answered")
+        wait_page(b, lambda b: not b.find_elements(By.CSS_SELECTOR, ".pocket.worn"), 10, "T5 reset: no worn mark")
+        assert "tools reset row 5 T5 (page) -> done" in (plant["tmp"] / "audit.log").read_text()
 
         # --- a page without the token: refused, and nothing reaches the PLC
         b.execute_script("sessionStorage.clear()")

@@ -40,6 +40,7 @@ from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
 from ..runsetup import SIM_FLAG_SIGNAL
+from ..tools import ANSWERS, EDIT_RESET, Table, ToolsError
 from . import mapinfo
 
 STATIC = Path(__file__).parent / "static"
@@ -322,8 +323,10 @@ def run_command(hub: Hub, cmd: str, arg) -> dict:
     client.connect()
     session = Session(rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60.0))
     try:
-        if cmd not in ("home", "clear", "goto", "step", "confirm"):
-            return {"ok": False, "error": f"unknown command '{cmd}' (home, step, goto, clear, confirm)"}
+        if cmd not in ("home", "clear", "goto", "step", "confirm", "tool-reset"):
+            return {"ok": False, "error": f"unknown command '{cmd}' (home, step, goto, clear, confirm, tool-reset)"}
+        if cmd == "tool-reset":
+            return tool_reset(hub, session.tags, arg)
         if cmd == "step" and arg not in (1, -1):
             return {"ok": False, "error": "step is +1 or -1"}
         if cmd in ("goto", "confirm") and (not isinstance(arg, int) or isinstance(arg, bool)):
@@ -352,6 +355,29 @@ def run_command(hub: Hub, cmd: str, arg) -> dict:
     finally:
         session.stop()
         client.close()
+
+
+def tool_reset(hub: Hub, tags, tool) -> dict:
+    """A tool's time used back to 0 (after a regrind or a new tool) through the PLC's edit command, audited as
+    `plc tools reset` is (docs/tools.md), in the audit log beside the token file."""
+    if not isinstance(tool, int) or isinstance(tool, bool) or tool < 1:
+        return {"ok": False, "error": "tool-reset needs a tool number"}
+    if not tags.has("ToolEditRequest"):
+        return {"ok": False, "error": "this PLC's register map has no tool table"}
+    token_dir = hub.opts.token_file.parent if hub.opts.token_file else Path("var")
+    table = Table(tags, token_dir / runtime.DEFAULT_AUDIT_FILE.name)
+    try:
+        _, rows, _ = table.rows()
+        row = next((r for r in rows if r.tool == tool), None)
+        if row is None:
+            return {"ok": False, "error": f"T{tool} is in no row of the PLC's tool table"}
+        what = f"reset row {row.row} T{tool} (page)"
+        answer = table.edit(EDIT_RESET, row.row, what)
+    except ToolsError as exc:
+        return {"ok": False, "error": str(exc)}
+    if answer != 1:
+        return {"ok": False, "error": f"T{tool}: {ANSWERS.get(answer, f'answer {answer}')}"}
+    return {"ok": True, "text": f"T{tool}: time used reset to 0"}
 
 
 def goto(session: Session, hub: Hub, pocket: int) -> dict:
@@ -444,7 +470,8 @@ def make_app(hub: Hub):
             return bad
         data = await body_of(request)
         if data is None or not isinstance(data.get("cmd"), str):
-            return refuse(400, 'expected JSON {"cmd": "home"|"step"|"goto"|"clear"|"confirm", "arg": ...}')
+            return refuse(400, 'expected JSON {"cmd": "home"|"step"|"goto"|"clear"|"confirm"|"tool-reset", '
+                               '"arg": ...}')
         if command_lock.locked():
             return refuse(409, "another command is running")
         async with command_lock:
