@@ -243,6 +243,61 @@ def test_nesting_is_limited_instead_of_exhausting_the_stack():
     assert errors(prog("VAR x : INT; END_VAR", ok)) == []
 
 
+
+def chain(n: int, op: str, term: str) -> str:
+    return f" {op} ".join([term] * n)
+
+
+def test_a_long_operator_chain_is_an_error_before_any_pass_recurses(tmp_path, capsys):
+    """Brackets count towards MAX_DEPTH, an operator chain does not: `a AND a AND ...` is as deep a tree as it
+    is long, and every stage after the parser recurses over it.  Past parser.MAX_OPERATORS the parser reports
+    the expression at its start (2,500 terms ended in a RecursionError in the passes)."""
+    from plc.parser import MAX_OPERATORS
+    decls = "VAR a : BOOL; q : BOOL; n : INT; END_VAR"
+    too_deep = f"expression too deeply nested: {{}} operators (limit {MAX_OPERATORS})"
+    assert errors(prog(decls, f"q := {chain(2500, 'AND', 'a')};")) == [(3, 6, too_deep.format(2499))]
+    # the first error of the rest of the file is what the parser's recovery makes of it
+    assert errors(prog(decls, f"IF n > {chain(MAX_OPERATORS + 1, '+', '1')} THEN n := 0; END_IF;"))[0] == \
+        (3, 4, too_deep.format(MAX_OPERATORS + 1))
+    # a statement's target: members count too (s.s.s... would be wrong later, but no later stage sees it)
+    assert (3, 1, too_deep.format(1001)) in errors(prog(decls, f"s{'.s' * 1000}.n := 1;"))
+    const = ("VAR CONSTANT k : INT := " + chain(3000, "+", "1") + "; END_VAR\n"
+             "VAR x : INT; END_VAR")
+    assert errors(prog(const, "x := k;"))[0] == (2, 25, f"expression too deeply nested: 2999 operators "
+                                                          f"(limit {MAX_OPERATORS})")
+    f = tmp_path / "chain.st"
+    f.write_text(prog("VAR a : BOOL; q : BOOL; END_VAR", f"q := {chain(2500, 'AND', 'a')};"))
+    rc, text = run_plc("check", str(f), capsys=capsys)
+    assert rc == 1 and "Traceback" not in text
+    assert f"chain.st:3:6: error: expression too deeply nested: 2499 operators (limit {MAX_OPERATORS})" in text
+
+
+def test_an_operator_chain_at_the_limit_compiles_to_c_and_scans(tmp_path, capsys):
+    """MAX_OPERATORS operators in one expression go through every stage (passes, constant folding, the portability
+    pass, the C generator); chains of 200 terms give their values in a scan."""
+    from harness import run_st, with_config
+    from plc.parser import MAX_OPERATORS
+    deepest = "(" * 100 + chain(MAX_OPERATORS, "+", "1") + ")" * 100     # MAX_OPERATORS with the '-'
+
+    limit = prog("VAR CONSTANT k : DINT := " + chain(MAX_OPERATORS + 1, "+", "1") + "; END_VAR\n"
+                 "VAR n : DINT; END_VAR", f"n := k - {deepest};")
+    res = compile_st(with_config(limit)[0], target="openplc")
+    assert res.ok and res.c_text, render_errors(res)
+    src = prog("VAR a : BOOL := TRUE; b : BOOL; q_and : BOOL; q_low : BOOL; q_or : BOOL; n : INT; END_VAR",
+               f"q_and := {chain(200, 'AND', 'a')};\n"
+               f"q_low := {chain(199, 'AND', 'a')} AND b;\n"
+               f"q_or := {chain(199, 'OR', 'b')} OR a;\n"
+               f"n := {chain(200, '+', '1')} - {chain(50, '*', '1')};", name="P_Chain")
+    run = run_st(src)
+    assert [run.value(f"P_Chain.{v}") for v in ("q_and", "q_low", "q_or", "n")] == [1, 0, 1, 199]
+    f = tmp_path / "limit.st"
+    f.write_text(limit)
+    assert run_plc("check", "--target", "openplc", str(f), capsys=capsys)[0] == 0
+
+
+def render_errors(res) -> str:
+    return "\n".join(str(d) for d in res.diags.errors)
+
 def test_huge_literals_are_diagnosed():
     errs = errors(prog("VAR x : LINT; r : LREAL; t : TIME; END_VAR",
                        "x := " + "9" * 100 + ";\nr := 1.0E999;\nt := T#" + "9" * 30 + "d;"))

@@ -162,6 +162,23 @@ def test_a_chain_deeper_than_the_translation_goes_is_a_positioned_error():
                                                "of this LD body chains too many elements"), diags.errors[0].render()
 
 
+
+def test_a_chain_longer_than_an_st_expression_may_be_is_an_error_at_its_first_contact(tmp_path):
+    """2,500 contacts in series translate, but their ST is one expression of 2,499 ANDs, past the parser's
+    MAX_OPERATORS (every later stage recurses over it): an error at the first contact, exit 1, no traceback."""
+    from plc.parser import MAX_OPERATORS
+    n = 2500
+    b = Body().left_rail(1)
+    for k in range(n):
+        b.contact(10 + k, "a", 1 if k == 0 else 9 + k, x=k)
+    b.coil(5, "q", 9 + n)
+    text = project([pou("FB_Long", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
+    r = plc("check", str(write(tmp_path, text)))
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    line = line_of(text, 'localId="10"')
+    assert (f"p.xml:{line}:1: error: in FB_Long, element localId 10: expression too "
+            f"deeply nested: 2499 operators (limit {MAX_OPERATORS})") in r.stderr, r.stderr[-2000:]
+
 def test_dangling_reference_is_a_positioned_error(tmp_path):
     b = Body().left_rail(1).contact(2, "a", 99).coil(3, "q", 2).right_rail(4, [3])
     err = body_error(tmp_path, b)

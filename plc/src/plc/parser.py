@@ -19,6 +19,12 @@ from .lexer import Token, tokenize
 from .timelit import decode
 
 MAX_DEPTH = 120
+# Operators (binary, unary, member, index, dereference) in one expression.  MAX_DEPTH bounds brackets and calls
+# but not a chain `a AND a AND ...`, which is as deep a tree as it is long; every stage after the parser walks
+# trees recursively (the passes take about 4 frames an operator, the C generator 2, under the 10,000 frames
+# driver.deep_recursion allows), so one expression holds at most this many.  A real program never comes near
+# it: the longest expression in st_src and iec_tests has 73.
+MAX_OPERATORS = 500
 
 # binary operator -> (precedence, right-associative)
 BINARY = {
@@ -51,6 +57,8 @@ class Parser:
         self.diags = diags
         self.facts: list[Fact] = facts if facts is not None else []   # for the portability pass
         self.depth = 0
+        self.operators = 0          # operators of the expression `bounded` is parsing
+        self.counting = False
 
     # -- token helpers ------------------------------------------------------------
     @property
@@ -207,6 +215,23 @@ class Parser:
             return parse()
         finally:
             self.depth -= 1
+
+    def bounded(self, parse):
+        """Run `parse` for an expression (or a statement's target); past MAX_OPERATORS operators in it report
+        the expression at its start instead of handing every later stage a tree deeper than its stack."""
+        if self.counting:
+            return parse()
+        start = self.tok.pos
+        self.operators = 0
+        self.counting = True
+        try:
+            e = parse()
+        finally:
+            self.counting = False
+        if self.operators > MAX_OPERATORS:
+            raise self.fail(f"expression too deeply nested: {self.operators} operators (limit {MAX_OPERATORS})",
+                            "split it into several assignments through temporary variables", pos=start)
+        return e
 
     def type_spec(self) -> A.TypeSpec:
         return self.nested("type", self._type_spec)
@@ -504,7 +529,7 @@ class Parser:
                 return A.Return(t.pos)
             raise self.fail(f"unexpected {v} at the start of a statement")
         if t.kind == "IDENT":
-            target = self.postfix(self.primary_name())
+            target = self.bounded(lambda: self.postfix(self.primary_name()))
             if isinstance(target, A.Call):
                 self.end_stmt("the call")
                 return A.CallStmt(t.pos, target)
@@ -603,7 +628,7 @@ class Parser:
         self.facts.append(fact("strucpp-case-label", start.pos, why=why))
 
     def case_value(self) -> A.Expr:
-        return self.unary()
+        return self.bounded(self.unary)
 
     def case_body(self, kw: Token) -> list[A.Stmt]:
         """Statements of one CASE arm: up to the next label (`x:` or `x..y:` or `x,`) or ELSE/END_CASE."""
@@ -690,7 +715,7 @@ class Parser:
 
     # -- expressions -----------------------------------------------------------------------------
     def expression(self) -> A.Expr:
-        return self.nested("expression", lambda: self.binary(1))
+        return self.bounded(lambda: self.nested("expression", lambda: self.binary(1)))
 
     def binop(self) -> str | None:
         t = self.tok
@@ -711,6 +736,7 @@ class Parser:
             right = self.binary(prec + 1)
             if op == "&":
                 op = "AND"
+            self.operators += 1
             left = A.Binary(t.pos, op, left, right)
 
     def unary(self) -> A.Expr:
@@ -725,6 +751,7 @@ class Parser:
                 operand.pos = t.pos
                 operand.negated = True
                 return operand
+            self.operators += 1
             return A.Unary(t.pos, op, operand)
         return self.power()
 
@@ -834,6 +861,8 @@ class Parser:
     def postfix(self, e: A.Expr) -> A.Expr:
         while True:
             t = self.tok
+            if t.is_sym(".", "[", "^"):
+                self.operators += 1
             if t.is_sym("."):
                 self.next()
                 m = self.tok

@@ -24,7 +24,7 @@ from pathlib import Path
 from . import buildcache, testcases
 from .codegen import generate_units
 from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, compile_units, content_hash,
-                     paused_gc, print_diagnostics)
+                     deep_recursion, paused_gc, print_diagnostics)
 from .project import add_view_options, project_root, refused_by_preflight
 from .resources import RUNTIME_SRC
 
@@ -85,7 +85,8 @@ def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, 
     if not res.ok:
         raise TestBuildError(len(res.diags.errors))
     cache = cache or buildcache.active() or buildcache.Cache(build_dir / "cache")
-    units = [buildcache.Unit(name, text) for name, text in generate_units(res.program, test_build=True)]
+    # the C generator recurses over expressions like the passes: the same stack allowance (parser.MAX_OPERATORS)
+    units = [buildcache.Unit(name, text) for name, text in deep_recursion(generate_units)(res.program, test_build=True)]
     units += [buildcache.Unit(f.stem, f.read_text()) for f in (STDLIB / "test_main.c", SCAN_CORE[0])]
     flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}"]
     # a unit the C compiler refuses is the compiler's bug: exit 3, the C and the output kept in build_dir/c
