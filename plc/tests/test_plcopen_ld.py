@@ -10,6 +10,7 @@ import pytest
 
 from harness import run_st
 from plc.diagnostics import Diagnostics
+from plc.driver import compile_sources
 from plc.plcopen import translate
 from plcopen_build import Body, pou, project
 
@@ -185,6 +186,24 @@ def test_en_eno_chain_of_functions():
     assert "EN := go" in st and "ENO => eno5" in st
     KINDS_COVERED.update({"block function", "EN", "ENO", "outVariable"})
 
+
+
+def test_functions_with_en_and_eno_but_their_out_unread_are_portable(tmp_path):
+    """ENO used, OUT wired nowhere: the call still assigns its result (to the block's outN), a bare FUNCTION
+    call being no statement in MATIEC; `plc check --target openplc` has nothing to say."""
+    b = Body().left_rail(1).contact(2, "go", 1).in_var(3, "n", y=60).in_var(4, "INT#1", y=90) \
+        .block(5, "ADD", {"EN": 2, "IN1": 3, "IN2": 4}, ["ENO", "OUT"]) \
+        .block(6, "MOVE", {"EN": (5, "ENO"), "IN": 3}, ["ENO", "OUT"], x=300) \
+        .coil(7, "done", (6, "ENO"), x=600).right_rail(8, [7])
+    out, st = scan(b, {"go": [False, True, True, False], "n": [1, 4, 9, 2]}, ["done"])
+    assert out["done"] == [False, True, True, False]
+    assert "out5 := ADD(EN := go, IN1 := n, IN2 := INT#1, ENO => eno5);" in st
+    assert "out6 := MOVE(EN := eno5, IN := n, ENO => eno6);" in st
+    xml = tmp_path / "uut.xml"
+    xml.write_text(project([pou("Uut", "functionBlock", b, inputs=[("go", "BOOL"), ("n", "INT")],
+                                outputs=[("done", "BOOL")])]))
+    res = compile_sources([xml], target="openplc", generate=False)
+    assert res.ok and [d.render() for d in res.diags.sorted()] == []
 
 def test_expression_as_block_input():
     b = Body("FBD").in_var(1, "a * 2 + 1").in_var(2, "b", y=40) \

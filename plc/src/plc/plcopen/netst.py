@@ -381,10 +381,25 @@ class Translator:
             if pin not in ("OUT", "ENO") and pin not in e.inouts and self.reads.get((e.id, pin)):
                 parts.append(f"{e.pin_text.get(pin, pin)} => {self.temp_name(e, pin)}")
         call = cat(f"{e.type_name}(", *join(", ", parts), ")")
-        if "OUT" in e.outputs and self.reads.get((e.id, "OUT")):
-            out.append(Line.of(e.id, f"{self.temp_name(e, 'OUT')} := ", call, ";"))
+        result = self.result_temp(e)
+        if result is not None:
+            out.append(Line.of(e.id, f"{result} := ", call, ";"))
         else:
             out.append(Line.of(e.id, call, ";"))
+
+    def result_temp(self, e: Element) -> str | None:
+        """Where a function's result goes: its OUT temporary, read or not (a bare function call is no statement
+        in MATIEC); None when the result's type is unknown (nothing typed wired, a generic result)."""
+        if self.reads.get((e.id, "OUT")):
+            return self.temp_name(e, "OUT")
+        key = ("o", e.id, "OUT")
+        t = self.wires.type_of(key) if "OUT" in e.outputs else None
+        ret = self.sig(e).ret
+        if t is None and ret and not ret.upper().startswith("ANY"):
+            t = ret
+        if t is None:
+            return None
+        return self.fresh(f"out{e.id}", t, f"output OUT of {e.type_name} {e.id} (not read)", key)
 
     # ----------------------------------------------------------------- actions --
     def is_action(self, e: Element) -> bool:
