@@ -442,8 +442,22 @@ def test_a_power_flow_loop_and_an_unwired_connector_are_positioned_errors(tmp_pa
     code, err = run_import(proj, tmp_path / "out", capsys)
     assert code == 1
     line = line_of(ld, '"id": "coil_done"')
-    assert re.search(rf"LdCounter\.ld:{line}:1: error: in LdCounter, rung 1, node 'coil_done' \(localId \d+\): the "
-                     r"wire into coil \d+ comes back from its own output", err), err
+    assert re.search(rf"LdCounter\.ld:{line}:1: error: in LdCounter, rung 1, node 'coil_done' \(localId \d+\): power "
+                     r"flow loops back into coil \d+ \(Done\): its input is wired to its own output", err), err
+
+    # a loop through a continuation and its connector (graph.check_loops, shared with PLCopen XML, follows it)
+    proj = project_copy(tmp_path / "c")
+    fbd = proj / "pous" / "function-blocks" / "FbdScale.fbd"
+
+    def through_connector(body):
+        edge = next(e for e in body["rung"]["edges"] if e["target"] == "con_sum")
+        edge["source"], edge["sourceHandle"] = "cont_sum1", "output"
+    edit_body(fbd, through_connector)
+    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert code == 1 and "Traceback" not in err
+    line = line_of(fbd, '"id": "con_sum"')
+    assert re.search(rf"FbdScale\.fbd:{line}:1: error: in FbdScale, node 'con_sum' \(localId \d+\): the signal loops "
+                     r"back into connector 'Sum' \(\d+\) through continuation 'Sum' \(\d+\)", err), err
 
     proj = project_copy(tmp_path / "b")
     fbd = proj / "pous" / "function-blocks" / "FbdScale.fbd"

@@ -390,7 +390,7 @@ class EditorProject:
             raise EditorError(f"malformed JSON body: {e.msg}", p.file, line, col, p.name) from None
         graph = Graph(p, start_line, raw.lstrip(), self.known_blocks)
         elems = graph.ld(value) if language == "LD" else graph.fbd(value)
-        graph.check_loops(elems)
+        graph.check_connectors(elems)
         ctx = Context(p.name, p.kind, var_types, self.sigs, taken)
         try:
             result = Translator(elems, ctx, language).run()
@@ -648,36 +648,10 @@ class Graph:
             for el, spin in sources(ed, frozenset()):
                 target.inputs[pin].refs.append(Ref(el.id, spin, self.lines.get(ed["id"], target.line)))
 
-    def check_loops(self, elems: list[Element]) -> None:
-        """A wire loop through contacts, coils, variables or connectors only (no block to hold a value) has no
-        meaning: refused at a node on the loop."""
-        by_id = {e.id: e for e in elems}
-        state: dict[int, int] = {}
-
-        def visit(e: Element) -> None:
-            stack = [(e, iter([r.source for p in e.inputs.values() for r in p.refs]))]
-            state[e.id] = 1
-            while stack:
-                node, it = stack[-1]
-                nxt = next(it, None)
-                if nxt is None:
-                    state[node.id] = 2
-                    stack.pop()
-                    continue
-                src = by_id.get(nxt)
-                if src is None or src.kind == "block":
-                    continue
-                if state.get(src.id) == 1:
-                    raise self.error(f"the wire into {node.kind} {node.id} comes back from its own output, through "
-                                     "no block: a loop of power flow", self.json_ids.get(node.id, ""),
-                                     self.labels.get(node.id, ""))
-                if src.id not in state:
-                    state[src.id] = 1
-                    stack.append((src, iter([r.source for p in src.inputs.values() for r in p.refs])))
-
-        for e in elems:
-            if e.kind != "block" and e.id not in state:
-                visit(e)
+    def check_connectors(self, elems: list[Element]) -> None:
+        """Every connector has a wire into it and every continuation a connector of its name, read or not (the
+        shared checks, graph.check_connectors and check_loops, run in Translator.run: the latter finds wire loops
+        through no block, continuation -> connector included, and reports them at this body's node too)."""
         connectors = {e.text.upper(): e for e in elems if e.kind == "connector"}
         for e in elems:
             if e.kind == "connector" and not e.inputs[""].refs:
