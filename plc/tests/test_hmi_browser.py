@@ -185,6 +185,13 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
         row4 = [td.text for td in b.find_elements(By.CSS_SELECTOR, "#tools tr[data-tool='4'] td")]
         assert row4[:5] == ["T4", "4", "-", "2 min", "0:30"], row4
         assert len(b.find_elements(By.CSS_SELECTOR, ".pocket.worn")) == 1     # T5 stays worn: the page resets it
+        # T3 (in the spindle) flagged the probe tool: the PLC inhibits the spindle and the page says why
+        assert text(b, "spindle-inhibit") == "free"
+        assert edits.edit(1, 3, "T3 the probe", Row(3, 3, 3, flags=1)) == 1
+        wait_page(b, lambda b: text(b, "spindle-inhibit").startswith("inhibited: the probe tool T3 is in it"), 10,
+                  "the spindle inhibit and its reason")
+        assert edits.edit(1, 3, "T3 no probe", Row(3, 3, 3)) == 1
+        wait_page(b, lambda b: text(b, "spindle-inhibit") == "free", 10, "the inhibit gone")
         session.stop()
         client.close()
 
