@@ -69,6 +69,7 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
     "no-resource": (prog(OK, "x := 1;") + "CONFIGURATION Config0\nTASK t0(INTERVAL := T#4ms, PRIORITY := 0);\n"
                     "PROGRAM i0 WITH t0 : Main;\nEND_CONFIGURATION\n", None),
     "no-task": (prog(OK, "x := 1;") + CFG.replace("WITH t0 ", ""), None),
+    "openplc-time-negate": (prog(OK, "t := -T#20ms;\nt := -(t - T#1s);"), "openplc"),
     "power": (prog("VAR r : REAL; END_VAR", "r := 2.0 ** 3.0;"), None),
     "pragma": (prog(OK, "{attribute 'x'}\nx := 1;"), None),
     "string-length": (prog("VAR s : STRING[20]; END_VAR", "s := 'a';"), None),
@@ -182,3 +183,13 @@ def test_every_rule_is_documented_in_matiec_md_and_nothing_else_is():
     documented = re.findall(r"^\| `([a-z-]+)` \|", section, flags=re.M)
     assert len(documented) == len(set(documented)), "a rule documented twice"
     assert sorted(documented) == sorted(portability.RULES)
+
+
+@pytest.mark.parametrize("target", [None, "openplc", "openplc-v4"])
+def test_a_negative_time_written_as_a_subtraction_from_zero_is_portable_everywhere(target):
+    """The spelling the hints of strucpp-negative-time and openplc-time-negate give: MATIEC, OpenPLC's g++ and
+    STruC++ all take it, so no target warns."""
+    assert portability_warnings(prog(OK, "t := T#0s - T#20ms;\nb := t >= T#0s - (t - T#1s);"), target) == []
+    hints = {d.hint for d in portability_warnings(prog(OK, "t := T#-20ms;"), "openplc-v4")}
+    assert hints == {"write T#0s - T#20ms: MATIEC, OpenPLC's C and STruC++ all take it (-T#20ms does not compile "
+                     "in OpenPLC v3)"}

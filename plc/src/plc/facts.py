@@ -59,6 +59,9 @@ RULES: dict[str, Rule] = {
     "no-resource": Rule("TASK and PROGRAM directly in the CONFIGURATION are rejected by MATIEC",
                         "put them in RESOURCE Res0 ON PLC"),
     "no-task": Rule("program instance '{instance}' has no task: MATIEC rejects it", "PROGRAM inst WITH task : Type;"),
+    "openplc-time-negate": Rule("unary '-' on a {type}: MATIEC takes it, but OpenPLC's g++ rejects the C it makes "
+                                "of it (IEC_TIMESPEC has no unary minus)", "subtract it from T#0s: T#0s - x for -x",
+                                "openplc"),
     "power": Rule("the '**' operator is missing in OpenPLC", "use EXPT(a, b)"),
     "pragma": Rule("pragma {{...}} ignored here, but MATIEC pastes it into its C output", "remove it"),
     "string-length": Rule("STRING[n] is not supported by OpenPLC (a bare declaration crashes iec2c)",
@@ -106,7 +109,8 @@ RULES: dict[str, Rule] = {
                                  "the '#'", "write {value} alone (MATIEC takes it when no other enumeration "
                                  "declares {value}); STruC++'s {enum}.{value} is not MATIEC's", "openplc-v4"),
     "strucpp-negative-time": Rule("STruC++ (OpenPLC v4) rejects the negative TIME literal {text}",
-                                  "write -{positive}: MATIEC and STruC++ both take it", "openplc-v4"),
+                                  "write T#0s - {positive}: MATIEC, OpenPLC's C and STruC++ all take it "
+                                  "(-{positive} does not compile in OpenPLC v3)", "openplc-v4"),
     "strucpp-nested-comment": Rule("'(*' inside a comment: STruC++ (OpenPLC v4) nests comments, so this one ends "
                                    "at a later '*)' (or never), where MATIEC and plc end it at the first",
                                    "write the inner text without '(*'", "openplc-v4"),

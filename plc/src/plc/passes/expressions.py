@@ -309,6 +309,8 @@ class ExpressionTyping(Pass):
             return T.ERROR
         if e.op == "-" and b.cat == "uint":
             self.err(e.pos, f"unary '-' on unsigned {b.name}")
+        if e.op == "-" and b.cat == "time":
+            self.port(e.pos, "openplc-time-negate", type=b.name)
         return b
 
     ARITH = ("+", "-", "*", "/", "MOD", "**")
