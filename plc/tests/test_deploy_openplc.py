@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import re
+import shutil
 from pathlib import Path
 
 import pytest
 
 from plc import ast as A
-from atc import deploy
+from atc import deploy, freshness
+from atc.seq.cli import main as seq_main
 from plc import plcopen
 from plc.diagnostics import Diagnostics
 from plc.driver import compile_sources
@@ -139,3 +141,21 @@ def test_slave_devices_moves_the_machine_io_where_openplc_slave_devices_put_it(t
     assert re.search(r"\bToolPrepared AT %QX10\.0\b", text), "host signals keep their map address"
     assert not re.search(r" AT %IX[0-3]\.\d", text) and not re.search(r" AT %QX2\.\d", text)
     assert deploy.relocate("a AT %IX0.0 : BOOL;", {"B": "%IX100.0"})[1] == ["B"]
+
+
+def test_a_copy_without_git_is_fresh_and_deploys_the_same_bundle(bundle, tmp_path, monkeypatch, capsys):
+    """An archive of the project has no .git: the generated headers still name their files from the project root
+    (project.toml), so the drift check finds nothing stale and the deploy gives the repository's bundle."""
+    copy = tmp_path / "atc-plc"
+    shutil.copytree(REPO, copy, ignore=shutil.ignore_patterns(".git", ".venv", "build", "plc", "__pycache__",
+                                                              ".pytest_cache", "node_modules"))
+    assert not (copy / ".git").exists() and (copy / "project.toml").is_file()
+    assert freshness.problems(copy) == []
+    tables = copy / freshness.SEQ_TABLES
+    assert seq_main(["compile", str(copy / "configs/sequences/sequences.toml"), "--out", str(tables),
+                     "--check-drift"]) == 0
+    monkeypatch.chdir(copy)
+    out = tmp_path / "atc_openplc.st"
+    status = deploy.main(["openplc", "--out", str(out), "-q"])
+    assert status == 0, capsys.readouterr().err
+    assert out.read_bytes() == bundle.read_bytes()

@@ -1,8 +1,9 @@
 """Write an assembled sequence set as portable ST: the types and three lookup functions.
 
 The output is byte-for-byte reproducible: it depends only on the index and the sequence files, never on the time,
-the working directory or dictionary order. Paths in the header are relative to the repository root (the nearest
-directory holding .git), or bare file names outside a repository.
+the working directory or dictionary order. Paths in the header are relative to the project root (the nearest
+directory holding project.toml, else the nearest holding .git), or bare file names outside both: a project
+unpacked from an archive, without .git, writes and drift-checks the same header as its repository.
 
 MATIEC portability: enums without values, no STRING[n], literal CASE labels only, functions called inside
 expressions; F_SequenceStep builds its result in a local ST_SeqStep that starts at the defaults on every call.
@@ -15,6 +16,7 @@ from pathlib import Path
 from plc.project import where
 from plc.timelit import ms_literal
 
+from ..project import PROJECT_FILE
 from .assemble import Assembly
 from .diagnostics import format_ranges
 from .encoding import AXES, STEP_FIELDS, Kind, Opcode, Step
@@ -23,11 +25,12 @@ INDENT = "    "
 
 
 def stable_name(path: Path) -> str:
-    """`configs/sequences/sequences.toml` inside a repository, else the bare file name."""
+    """`configs/sequences/sequences.toml` inside a project (or a repository), else the bare file name."""
     resolved = where(path)
-    for parent in resolved.parents:
-        if (parent / ".git").exists():
-            return resolved.relative_to(parent).as_posix()
+    for mark in (PROJECT_FILE, ".git"):
+        for parent in resolved.parents:
+            if (parent / mark).exists():
+                return resolved.relative_to(parent).as_posix()
     return resolved.name
 
 
