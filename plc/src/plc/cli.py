@@ -27,11 +27,16 @@ def cmd_check(args) -> int:
                           test_build="auto")
     print_diagnostics(res, quiet=args.quiet)
     n_err, n_warn = len(res.diags.errors), len(res.diags.warnings)
+    # checking for a deploy target, a portability warning is what that target refuses or reads otherwise: the
+    # program does not deploy there as written, so the check fails
+    n_target = sum(1 for d in res.diags.warnings if (d.code or "").startswith("portability.")) if args.target else 0
     if not args.quiet:
         nfiles = len([f for f in res.files if not f.path.startswith("<plc>")])
         found = f"{n_err} error(s), {n_warn} warning(s)" if n_err or n_warn else "clean"
+        if n_target:
+            found += f"; {n_target} portability warning(s) for --target {args.target}: not deployable as written"
         print(f"checked {nfiles} file(s): {found} in {time.perf_counter() - t0:.2f}s", file=sys.stderr)
-    return 1 if n_err else 0
+    return 1 if n_err or n_target else 0
 
 
 def use_project_cache(root: Path | None) -> None:
@@ -172,7 +177,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"plc {__version__}")
     sub = ap.add_subparsers(dest="cmd", metavar="COMMAND")
     p = sub.add_parser("check", help="report errors and portability warnings", description=
-                       "Parse and check ST files; print diagnostics as file:line:col. Exit 0 when there is no error.")
+                       "Parse and check ST files; print diagnostics as file:line:col. Exit 0 when there is no error "
+                       "(with --target, and no portability warning either: what the target refuses fails the check).")
     add_compile_opts(p)
     p.set_defaults(func=cmd_check)
     p = sub.add_parser("build", help="compile ST to C and an object file", description=
