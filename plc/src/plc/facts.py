@@ -125,6 +125,11 @@ RULES: dict[str, Rule] = {
                               "the left operand already decides, and an index out of its bounds stops the program "
                               "there (an exception), where MATIEC and plc skip the read",
                               "read {array}[...] inside an IF that checks {index} first", "openplc-v4"),
+    "strucpp-not-int": Rule("STruC++ (OpenPLC v4) writes the {op} under this NOT as C++ '{cpp}' of {operands}, "
+                            "which gives an int, and its NOT takes bit types only: g++ refuses the C++",
+                            "give the {op} to a variable and write NOT of that variable, or for comparisons apply De "
+                            "Morgan (NOT (a <> 0 AND b = c) is a = 0 OR b <> c): MATIEC, plc and STruC++ all take "
+                            "both", "openplc-v4"),
 }
 
 

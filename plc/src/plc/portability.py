@@ -89,6 +89,7 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                 if v4:
                     strucpp_names(item, prog, diags)
                     strucpp_and_guards(item, diags)
+                    strucpp_not_ints(item, diags)
                 if not errors_inside(item, diags):   # a syntax error may have emptied a statement list
                     statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
                 if item.kind == "FUNCTION" and not item.blocks:
@@ -356,6 +357,64 @@ def strucpp_and_guards(pou: A.Pou, diags: Diagnostics) -> None:
                 array = (base.text or base.name) if isinstance(base, (A.Name, A.Member)) else "the array"
                 report(diags, "strucpp-and-guard", index.pos, "openplc-v4", op="AND" if node.op == "&" else node.op,
                        array=array, index=", ".join(sorted(names & guarded)))
+
+
+COMPARISONS = ("=", "<>", *ORDERING)
+BITWISE = {"AND": "&", "&": "&", "OR": "|", "XOR": "^"}
+
+
+def strucpp_cpp_kind(e: A.Expr) -> str | None:
+    """What C++ type STruC++'s code gives `e`, as far as NOT cares: "int" (C++ '&', '|', '^' of two plain bools, of
+    an int, or of IECVar<T> and IECVar<U> of different T and U: none of the runtime's operator templates matches),
+    "bool" (a comparison, TRUE or FALSE, a NOT it writes as '!'), the name of the elementary type of an IECVar
+    (a variable, an element, a member, a function's result, a typed literal) or None where not known."""
+    if isinstance(e, A.Binary) and e.op in COMPARISONS:
+        return "bool"
+    if isinstance(e, A.BoolLit) and not e.prefix:
+        return "bool"
+    if isinstance(e, A.IntLit):
+        return e.prefix.upper() if e.prefix else "int"
+    if isinstance(e, A.Unary) and e.op == "NOT":
+        # NOT (x) is the runtime's NOT(x), of x's type; NOT x may be '!x' (a bool) or NOT(x): the AST keeps no
+        # parentheses, so only a binary operand (always written in parentheses) is known
+        return strucpp_cpp_kind(e.operand) if isinstance(e.operand, A.Binary) else None
+    if isinstance(e, A.Binary) and e.op in BITWISE:
+        left, right = strucpp_cpp_kind(e.left), strucpp_cpp_kind(e.right)
+        if "int" in (left, right) or left == right == "bool":
+            return "int"
+        if left is None or right is None:
+            return None
+        if "bool" in (left, right):                 # IECVar<bool> & bool is IECVar<bool>; IECVar<uint16_t> & bool
+            other = right if left == "bool" else left   # is C++'s own '&': an int
+            return other if other == "BOOL" else "int"
+        return left if left == right else "int"
+    if isinstance(e, (A.Name, A.Member, A.Index, A.Call)):
+        name = getattr(e.ty, "name", None)
+        return name.upper() if isinstance(name, str) and name.upper() in ELEMENTARY else None
+    return None
+
+
+def strucpp_not_ints(pou: A.Pou, diags: Diagnostics) -> None:
+    """`NOT (a <> 0 AND b = c)`: STruC++ writes AND, OR and XOR as C++ '&', '|' and '^', which give an int from two
+    comparisons (bools), and its NOT takes bit types only, so g++ refuses NOT of that int.  With a BOOL variable
+    (an IECVar) on one side and a bool or a BOOL on the other the runtime's operator gives an IECVar, and NOT
+    takes it."""
+    for node in (n for stmt in pou.body for n in A.walk(stmt)):
+        if not (isinstance(node, A.Unary) and node.op == "NOT" and isinstance(node.operand, A.Binary)
+                and node.operand.op in BITWISE):
+            continue
+        inner = node.operand
+        left, right = strucpp_cpp_kind(inner.left), strucpp_cpp_kind(inner.right)
+        if strucpp_cpp_kind(inner) != "int":
+            continue
+        if "int" in (left, right):
+            operands = "an int (an AND, OR or XOR of comparisons, or an untyped integer literal)"
+        elif left == right == "bool":
+            operands = "two bools (comparisons, TRUE or FALSE)"
+        else:
+            operands = f"{left} and {right}"
+        report(diags, "strucpp-not-int", node.pos, "openplc-v4", op="AND" if inner.op == "&" else inner.op,
+               cpp=BITWISE[inner.op], operands=operands)
 
 
 def strucpp_type_names(td: A.TypeDecl, diags: Diagnostics) -> None:
