@@ -103,6 +103,7 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
                       None),
     "strucpp-enum-literal": ("TYPE E_Mode : (Idle, Moving); END_TYPE\n" +
                              prog("VAR m : E_Mode; END_VAR", "m := E_Mode#Moving;"), "openplc-v4"),
+    "strucpp-bool-literal": (prog(OK, "b := BOOL#TRUE;"), "openplc-v4"),
     "strucpp-negative-time": (prog(OK, "t := T#-20ms;"), "openplc-v4"),
     "strucpp-nested-comment": (prog(OK, "(* a (* b *)\nx := 1;"), "openplc-v4"),
     "strucpp-case-label": (prog(OK, "CASE x OF\n1, 2, 3, 4, 5: x := 0;\nEND_CASE;"), "openplc-v4"),

@@ -108,6 +108,9 @@ RULES: dict[str, Rule] = {
     "strucpp-enum-literal": Rule("STruC++ (OpenPLC v4) rejects the enumeration literal {text}: its lexer stops at "
                                  "the '#'", "write {value} alone (MATIEC takes it when no other enumeration "
                                  "declares {value}); STruC++'s {enum}.{value} is not MATIEC's", "openplc-v4"),
+    "strucpp-bool-literal": Rule("STruC++ (OpenPLC v4) rejects the literal {text}: its lexer stops at the '#' "
+                                 "before TRUE or FALSE", "write {value} alone (every compiler takes it)",
+                                 "openplc-v4"),
     "strucpp-negative-time": Rule("STruC++ (OpenPLC v4) rejects the negative TIME literal {text}",
                                   "write T#0s - {positive}: MATIEC, OpenPLC's C and STruC++ all take it "
                                   "(-{positive} does not compile in OpenPLC v3)", "openplc-v4"),

@@ -809,6 +809,7 @@ class Parser:
             return A.RealLit(t.pos, -v.value if neg else v.value, prefix)
         if v.is_kw("TRUE", "FALSE") and not neg:
             self.next()
+            self.facts.append(fact("strucpp-bool-literal", t.pos, text=f"{t.text}#{v.text}", value=v.text))
             return A.BoolLit(t.pos, v.value == "TRUE", prefix)
         if v.kind == "STRING" and not neg:
             self.next()
