@@ -230,10 +230,19 @@ MW_FIRST, MW_LAST = _located(1024, 2047)    # the located %MW words of the map
 MD_FIRST, MD_LAST = _located(2048, 4095)    # the located %MD words (high word first)
 
 
+def read_span(tags: Tags, first: int, last: int) -> list[int]:
+    """Holding registers first..last, in requests of at most 124 words (Modbus allows 125; a %MD pair stays in
+    one request: the tool table made the %MW span longer than one request)."""
+    words: list[int] = []
+    for at in range(first, last + 1, 124):
+        words += tags.client.read_holding(at, min(124, last + 1 - at))
+    return words
+
+
 def mw_words(tags: Tags) -> tuple[list[int], list[int]]:
     """The %MW words and the %MD double words, read at rest."""
-    mw = tags.client.read_holding(MW_FIRST, MW_LAST - MW_FIRST + 1)
-    md = tags.client.read_holding(MD_FIRST, MD_LAST - MD_FIRST + 1)
+    mw = read_span(tags, MW_FIRST, MW_LAST)
+    md = read_span(tags, MD_FIRST, MD_LAST)
     return mw, [(md[i] << 16) | md[i + 1] for i in range(0, len(md), 2)]
 
 
