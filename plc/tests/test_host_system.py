@@ -180,10 +180,16 @@ def test_a_host_that_exits_normally_left_and_a_killed_one_lost_its_link(plc):
             assert time.monotonic() < deadline, f"no {pattern!r} in the log:\n{text[-3000:]}"
             time.sleep(0.2)
 
-    # The previous test's host may still be logged as leaving after this offset (the log line lags the event
-    # under load), so each session is recognised by its own lines: the link restored by its first heartbeat,
-    # then how it ended. A match on the previous host's "host left" would end part 1 early, and part 2 would
-    # then see this host's "host left" (seen on a loaded machine).
+    # The PLC tells a host's end by its heartbeat standing still for the link time-out (2 s), then names it by the
+    # last value. So the previous test's host may be logged as leaving after any offset taken now, or, on a fast
+    # machine, never (this host beats before the time-out ran out). Start from a link the PLC has seen drop:
+    # every session is then one "host link restored" and one end, recognised by its own lines.
+    client, tags = plc.tags()
+    with client:
+        deadline = time.monotonic() + 30
+        while tags.get("HostLinkOk"):
+            assert time.monotonic() < deadline, "the link of the previous test's host never dropped"
+            time.sleep(0.1)
     offset = plc.log.stat().st_size
     ok(plc.host("status"))
     text = lines_after(offset, r"host link restored(.*\n)*.*host left: its last heartbeat was 65535 \(a clean exit\)")
