@@ -29,16 +29,22 @@ def plc(*args: str) -> subprocess.CompletedProcess:
 
 
 def run_import(folder: Path, out: Path, capsys) -> tuple[int, str]:
-    code = importer.main(["openplc-editor", str(folder), "--out", str(out)])
-    cap = capsys.readouterr()
-    assert "Traceback" not in cap.err + cap.out
-    return code, cap.err
+    return run_import_args(["openplc-editor", str(folder), "--out", str(out)], capsys)
 
 
 def project_copy(tmp_path: Path) -> Path:
     dst = tmp_path / "proj"
     shutil.copytree(FIXTURE, dst)
     return dst
+
+
+def import_edited(tmp_path: Path, capsys, rel: str, old: str, new: str, count: int = -1) -> tuple[Path, int, str]:
+    """Import a copy of the fixture with `old` replaced by `new` in one of its files: that file, the exit code
+    and the diagnostics."""
+    f = project_copy(tmp_path) / rel
+    f.write_text(f.read_text().replace(old, new, count))
+    code, err = run_import(tmp_path / "proj", tmp_path / "out", capsys)
+    return f, code, err
 
 
 def line_of(path: Path, needle: str, nth: int = 1) -> int:
@@ -114,12 +120,9 @@ def test_help_and_usage_errors(tmp_path, capsys):
 
 
 def test_malformed_json_body_is_an_error_at_its_line_and_column(tmp_path, capsys):
-    proj = project_copy(tmp_path)
-    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
-    text = ld.read_text()
-    ld.write_text(text.replace('"comment": "start/stop with a seal-in branch",',
-                               '"comment": "start/stop with a seal-in branch"'))
-    code, err = run_import(proj, tmp_path / "out", capsys)
+    ld, code, err = import_edited(tmp_path, capsys, "pous/function-blocks/LdCounter.ld",
+                                  '"comment": "start/stop with a seal-in branch",',
+                                  '"comment": "start/stop with a seal-in branch"')
     assert code == 1
     line = line_of(ld, '"defaultBounds"', 2)      # the key after the missing comma
     assert re.search(rf"LdCounter\.ld:{line}:\d+: error: in LdCounter: malformed JSON body: Expecting ',' "
@@ -128,10 +131,7 @@ def test_malformed_json_body_is_an_error_at_its_line_and_column(tmp_path, capsys
 
 
 def test_malformed_project_json_is_an_error_at_its_position(tmp_path, capsys):
-    proj = project_copy(tmp_path)
-    pj = proj / "project.json"
-    pj.write_text(pj.read_text().replace('"priority": 1', '"priority": 1,'))
-    code, err = run_import(proj, tmp_path / "out", capsys)
+    pj, code, err = import_edited(tmp_path, capsys, "project.json", '"priority": 1', '"priority": 1,')
     assert code == 1
     line = line_of(pj, '"priority": 1,') + 1
     assert re.search(rf"project\.json:{line}:\d+: error: malformed JSON", err), err
@@ -139,10 +139,8 @@ def test_malformed_project_json_is_an_error_at_its_position(tmp_path, capsys):
 
 
 def test_dangling_edge_names_file_pou_rung_edge_and_its_line(tmp_path, capsys):
-    proj = project_copy(tmp_path)
-    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
-    ld.write_text(ld.read_text().replace('"target": "coil_done"', '"target": "coil_gone"'))
-    code, err = run_import(proj, tmp_path / "out", capsys)
+    ld, code, err = import_edited(tmp_path, capsys, "pous/function-blocks/LdCounter.ld", '"target": "coil_done"',
+                                  '"target": "coil_gone"')
     assert code == 1
     line = line_of(ld, '"id": "e_block_ctu_coil_done"')
     assert f"LdCounter.ld:{line}:1: error: in LdCounter, rung 1: edge 'e_block_ctu_coil_done' goes to node " \
@@ -165,10 +163,8 @@ def test_pin_variable_of_a_missing_block_is_an_error_at_the_variable(tmp_path, c
 
 
 def test_unknown_block_type_is_an_error_at_the_node(tmp_path, capsys):
-    proj = project_copy(tmp_path)
-    fbd = proj / "pous" / "function-blocks" / "FbdScale.fbd"
-    fbd.write_text(fbd.read_text().replace('"name": "Clamp"', '"name": "Clamb"'))
-    code, err = run_import(proj, tmp_path / "out", capsys)
+    fbd, code, err = import_edited(tmp_path, capsys, "pous/function-blocks/FbdScale.fbd", '"name": "Clamp"',
+                                   '"name": "Clamb"')
     assert code == 1
     line = line_of(fbd, '"id": "blk_clamp"')
     assert re.search(rf"FbdScale\.fbd:{line}:1: error: in FbdScale, node "
@@ -177,10 +173,8 @@ def test_unknown_block_type_is_an_error_at_the_node(tmp_path, capsys):
 
 
 def test_a_compiler_error_in_a_translated_rung_points_at_the_node(tmp_path, capsys):
-    proj = project_copy(tmp_path)
-    ld = proj / "pous" / "function-blocks" / "LdCounter.ld"
-    ld.write_text(ld.read_text().replace('"name": "Stop"', '"name": "Stopp"'))
-    code, err = run_import(proj, tmp_path / "out", capsys)
+    ld, code, err = import_edited(tmp_path, capsys, "pous/function-blocks/LdCounter.ld", '"name": "Stop"',
+                                  '"name": "Stopp"')
     assert code == 1
     # the undeclared variable is reported on the rung's line of generated ST, at the coil that writes it
     line = line_of(ld, '"id": "coil_running"')
@@ -190,10 +184,7 @@ def test_a_compiler_error_in_a_translated_rung_points_at_the_node(tmp_path, caps
 
 
 def test_a_compiler_error_in_an_st_pou_keeps_its_line_and_column(tmp_path, capsys):
-    proj = project_copy(tmp_path)
-    st = proj / "pous" / "functions" / "Clamp.st"
-    st.write_text(st.read_text().replace("Clamp := Hi;", "Clamp := Hii;"))
-    code, err = run_import(proj, tmp_path / "out", capsys)
+    st, code, err = import_edited(tmp_path, capsys, "pous/functions/Clamp.st", "Clamp := Hi;", "Clamp := Hii;")
     assert code == 1
     assert re.search(rf"Clamp\.st:{line_of(st, 'Hii')}:12: error: in Clamp: .*Hii", err), err
 
@@ -211,13 +202,9 @@ def test_a_compiler_error_in_an_st_pou_keeps_its_line_and_column(tmp_path, capsy
     (("project.json", '"derivation": "enumerated"', '"derivation": "subrange"'), "derivation 'subrange'"),
 ])
 def test_bad_input_is_a_positioned_error_and_nothing_is_written(tmp_path, capsys, mutation, message):
-    proj = project_copy(tmp_path)
     rel, old, new = mutation
-    f = proj / rel
-    text = f.read_text()
-    assert old in text
-    f.write_text(text.replace(old, new, 1))
-    code, err = run_import(proj, tmp_path / "out", capsys)
+    assert old in (FIXTURE / rel).read_text()
+    f, code, err = import_edited(tmp_path, capsys, rel, old, new, 1)
     assert code == 1, err
     assert message in err, err
     assert re.search(rf"{re.escape(f.name)}:\d+:\d+: error: ", err), err
