@@ -147,20 +147,24 @@ def test_a_wire_loop_or_an_unwired_connector_is_a_positioned_error_never_a_trace
     assert f"p.xml:{line}:1: error: in FB_X, element localId {local_id}: {words}" in r.stderr, r.stderr
 
 
-def test_a_chain_deeper_than_the_translation_goes_is_a_positioned_error():
-    """Called as a library (Python's own stack limit, not the one `plc` sets), 5,000 contacts in series go
-    deeper than the recursive translation: an error at the body naming the POU, never a RecursionError."""
-    n = 5000
+def contacts_in_series(n: int) -> str:
+    """A project of FB_Long: n contacts on input a in series (localIds 10..9+n), then coil q."""
     b = Body().left_rail(1)
     for k in range(n):
         b.contact(10 + k, "a", 1 if k == 0 else 9 + k, x=k)
     b.coil(5, "q", 9 + n)
-    text = project([pou("FB_Long", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
+    return project([pou("FB_Long", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
+
+
+def test_a_chain_deeper_than_the_translation_goes_is_a_positioned_error():
+    """Called as a library (Python's own stack limit, not the one `plc` sets), 5,000 contacts in series go
+    deeper than the recursive translation: an error at the body naming the POU, never a RecursionError."""
+    n = 5000
+    text = contacts_in_series(n)
     diags = Diagnostics()
     assert translate("long.xml", text.encode(), diags) is None
     assert diags.errors[0].render().startswith(f"long.xml:{line_of(text, '<LD>')}:1: error: in FB_Long: the wiring "
                                                "of this LD body chains too many elements"), diags.errors[0].render()
-
 
 
 def test_a_chain_longer_than_an_st_expression_may_be_is_an_error_at_its_first_contact(tmp_path):
@@ -168,11 +172,7 @@ def test_a_chain_longer_than_an_st_expression_may_be_is_an_error_at_its_first_co
     MAX_OPERATORS (every later stage recurses over it): an error at the first contact, exit 1, no traceback."""
     from plc.parser import MAX_OPERATORS
     n = 2500
-    b = Body().left_rail(1)
-    for k in range(n):
-        b.contact(10 + k, "a", 1 if k == 0 else 9 + k, x=k)
-    b.coil(5, "q", 9 + n)
-    text = project([pou("FB_Long", "functionBlock", b, inputs=[("a", "BOOL")], outputs=[("q", "BOOL")])])
+    text = contacts_in_series(n)
     r = plc("check", str(write(tmp_path, text)))
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr[-2000:]
     line = line_of(text, 'localId="10"')
