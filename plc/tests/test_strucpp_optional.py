@@ -180,3 +180,40 @@ def test_the_scan_tests_pass_on_strucpp_output(tmp_path):
     assert failed == []
     assert sorted(r["name"] for r in report["results"]) == sorted(names)
     assert ran.returncode == 0
+
+
+# NOT over AND / OR / XOR, the shapes where STruC++'s C++ depends on how the ST is written: `NOT (x)` is a call of
+# its runtime's NOT (bit types only), `NOT x` is C++ '!x'.  The rule strucpp-not-int must warn exactly where g++
+# refuses STruC++'s output.
+NOT_SHAPES = [
+    "NOT (p <> 0 AND p = r)",
+    "NOT (NOT b AND p = r)",
+    "NOT (NOT (b) AND p = r)",
+    "NOT (b AND p = r)",
+    "NOT (NOT b OR NOT c)",
+    "NOT (NOT (b) OR NOT (c))",
+    "NOT (NOT b AND c)",
+    "NOT (b XOR TRUE)",
+    "NOT (b AND c)",
+    "NOT b AND NOT (c)",
+]
+
+
+@pytest.mark.parametrize("expression", NOT_SHAPES)
+def test_strucpp_not_int_warns_exactly_where_gpp_refuses_strucpps_cpp(tmp_path, expression):
+    strucpp, include = _strucpp()
+    _gpp()
+    source = tmp_path / "a.st"
+    source.write_text("PROGRAM Main\nVAR b : BOOL; c : BOOL; p : INT; r : INT; k : BOOL; END_VAR\n"
+                      f"k := {expression};\nEND_PROGRAM\nCONFIGURATION Config0\nRESOURCE Res0 ON PLC\n"
+                      "TASK t0(INTERVAL := T#4ms, PRIORITY := 0);\nPROGRAM i0 WITH t0 : Main;\nEND_RESOURCE\n"
+                      "END_CONFIGURATION\n")
+    compiled = subprocess.run([*strucpp, str(source), "-o", str(tmp_path / "a.cpp")], capture_output=True,
+                              text=True, timeout=600)
+    assert compiled.returncode == 0, compiled.stdout + compiled.stderr
+    gpp = subprocess.run(["g++", "-std=c++17", "-fsyntax-only", "-I", str(include), str(tmp_path / "a.cpp")],
+                         capture_output=True, text=True, timeout=600)
+    checked = subprocess.run([sys.executable, "-m", "plc.cli", "check", "--target", "openplc-v4", str(source)],
+                             capture_output=True, text=True, timeout=600)
+    warned = "writes the" in checked.stdout + checked.stderr and "under this NOT" in checked.stdout + checked.stderr
+    assert warned == (gpp.returncode != 0), (expression, gpp.stderr[-1500:], checked.stdout + checked.stderr)

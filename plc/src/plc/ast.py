@@ -206,6 +206,7 @@ class Direct(Expr):
 class Unary(Expr):
     op: str            # "-" "+" "NOT"
     operand: Expr
+    call_form: bool = False   # written `NOT (x)`: STruC++ reads that as a call of the function NOT, `NOT x` as '!x'
 
 
 @dataclass(eq=False)

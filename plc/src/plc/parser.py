@@ -743,6 +743,7 @@ class Parser:
         t = self.tok
         if t.is_sym("-", "+") or t.is_kw("NOT"):
             self.next()
+            call_form = self.tok.is_sym("(")
             operand = self.nested("expression", self.unary)
             op = "NOT" if t.kind == "KEYWORD" else t.value
             if op == "-" and isinstance(operand, (A.IntLit, A.RealLit)) and operand.prefix is None \
@@ -752,7 +753,7 @@ class Parser:
                 operand.negated = True
                 return operand
             self.operators += 1
-            return A.Unary(t.pos, op, operand)
+            return A.Unary(t.pos, op, operand, call_form=call_form and op == "NOT")
         return self.power()
 
     def power(self) -> A.Expr:

@@ -375,9 +375,11 @@ def strucpp_cpp_kind(e: A.Expr) -> str | None:
     if isinstance(e, A.IntLit):
         return e.prefix.upper() if e.prefix else "int"
     if isinstance(e, A.Unary) and e.op == "NOT":
-        # NOT (x) is the runtime's NOT(x), of x's type; NOT x may be '!x' (a bool) or NOT(x): the AST keeps no
-        # parentheses, so only a binary operand (always written in parentheses) is known
-        return strucpp_cpp_kind(e.operand) if isinstance(e.operand, A.Binary) else None
+        # NOT (x) is a call of the runtime's function NOT, of x's type; NOT x is C++ '!x' (a bool) when x is a BOOL
+        # ('~x' for the other bit types, left unknown here)
+        if e.call_form:
+            return strucpp_cpp_kind(e.operand)
+        return "bool" if getattr(e.operand.ty, "name", None) == "BOOL" else None
     if isinstance(e, A.Binary) and e.op in BITWISE:
         left, right = strucpp_cpp_kind(e.left), strucpp_cpp_kind(e.right)
         if "int" in (left, right) or left == right == "bool":
