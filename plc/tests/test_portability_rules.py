@@ -113,6 +113,8 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
                              prog("VAR rnd : FB_Die; x : INT; END_VAR", "rnd(faces := 6);\nx := rnd.v;"), "openplc-v4"),
     "strucpp-and-guard": (prog("VAR a : ARRAY[1..3] OF INT; k : INT; b : BOOL; END_VAR", "b := k > 0 AND a[k] = 0;"),
                           "openplc-v4"),
+    "strucpp-string-call": (prog("VAR s : STRING; x : INT; END_VAR", "x := LEN('abc');"), "openplc-v4"),
+    "strucpp-string-length": (prog("VAR s : STRING; END_VAR", "s := CONCAT(s, 'ab');"), "openplc-v4"),
     "strucpp-not-int": (prog("VAR tool : INT; pocket : INT; keep : BOOL; END_VAR",
                              "keep := NOT (tool <> 0 AND pocket = 3);"), "openplc-v4"),
 }

@@ -182,30 +182,48 @@ def test_the_scan_tests_pass_on_strucpp_output(tmp_path):
     assert ran.returncode == 0
 
 
-# NOT over AND / OR / XOR, the shapes where STruC++'s C++ depends on how the ST is written: `NOT (x)` is a call of
-# its runtime's NOT (bit types only), `NOT x` is C++ '!x'.  The rule strucpp-not-int must warn exactly where g++
-# refuses STruC++'s output.
-NOT_SHAPES = [
-    "NOT (p <> 0 AND p = r)",
-    "NOT (NOT b AND p = r)",
-    "NOT (NOT (b) AND p = r)",
-    "NOT (b AND p = r)",
-    "NOT (NOT b OR NOT c)",
-    "NOT (NOT (b) OR NOT (c))",
-    "NOT (NOT b AND c)",
-    "NOT (b XOR TRUE)",
-    "NOT (b AND c)",
-    "NOT b AND NOT (c)",
+# Statements whose C++ from STruC++ g++ may refuse: NOT over AND / OR / XOR (`NOT (x)` is a call of its runtime's NOT,
+# which takes bit types only; `NOT x` is C++ '!x') and the string functions (its runtime has overloads for some
+# literal arguments only).  The rules strucpp-not-int and strucpp-string-call must warn exactly where g++ refuses.
+REFUSABLE = [
+    "k := NOT (p <> 0 AND p = r)",
+    "k := NOT (NOT b AND p = r)",
+    "k := NOT (NOT (b) AND p = r)",
+    "k := NOT (b AND p = r)",
+    "k := NOT (NOT b OR NOT c)",
+    "k := NOT (NOT (b) OR NOT (c))",
+    "k := NOT (NOT b AND c)",
+    "k := NOT (b XOR TRUE)",
+    "k := NOT (b AND c)",
+    "k := NOT b AND NOT (c)",
+    "s := CONCAT('ab', 'cd')",
+    "s := CONCAT(s, 'a')",
+    "s := CONCAT('a', s)",
+    "s := CONCAT(s, s, s)",
+    "s := CONCAT(CONCAT(s, s), s)",
+    "s := LEFT('abc', 2)",
+    "s := LEFT(s, 2)",
+    "p := LEN('abc')",
+    "p := LEN(s)",
+    "s := MID('abc', 1, 1)",
+    "s := DELETE('abc', 1, 1)",
+    "s := INSERT(s, 'a', 1)",
+    "s := INSERT('abc', s, 1)",
+    "s := REPLACE(s, 'a', 1, 1)",
+    "s := REPLACE('abc', s, 1, 1)",
+    "p := FIND('abc', s)",
+    "k := s = 'abc'",
 ]
+WARNED = ("under this NOT", "has no C++ for")
 
 
-@pytest.mark.parametrize("expression", NOT_SHAPES)
-def test_strucpp_not_int_warns_exactly_where_gpp_refuses_strucpps_cpp(tmp_path, expression):
+@pytest.mark.parametrize("statement", REFUSABLE)
+def test_the_v4_target_warns_exactly_where_gpp_refuses_strucpps_cpp(tmp_path, statement):
     strucpp, include = _strucpp()
     _gpp()
     source = tmp_path / "a.st"
-    source.write_text("PROGRAM Main\nVAR b : BOOL; c : BOOL; p : INT; r : INT; k : BOOL; END_VAR\n"
-                      f"k := {expression};\nEND_PROGRAM\nCONFIGURATION Config0\nRESOURCE Res0 ON PLC\n"
+    source.write_text("PROGRAM Main\nVAR b : BOOL; c : BOOL; p : INT; r : INT; k : BOOL; s : STRING; END_VAR\n"
+                      f"{statement};\nEND_PROGRAM\nCONFIGURATION Config0\nRESOURCE Res0 ON PLC\n"
                       "TASK t0(INTERVAL := T#4ms, PRIORITY := 0);\nPROGRAM i0 WITH t0 : Main;\nEND_RESOURCE\n"
                       "END_CONFIGURATION\n")
     compiled = subprocess.run([*strucpp, str(source), "-o", str(tmp_path / "a.cpp")], capture_output=True,
@@ -215,5 +233,78 @@ def test_strucpp_not_int_warns_exactly_where_gpp_refuses_strucpps_cpp(tmp_path, 
                          capture_output=True, text=True, timeout=600)
     checked = subprocess.run([sys.executable, "-m", "plc.cli", "check", "--target", "openplc-v4", str(source)],
                              capture_output=True, text=True, timeout=600)
-    warned = "writes the" in checked.stdout + checked.stderr and "under this NOT" in checked.stdout + checked.stderr
-    assert warned == (gpp.returncode != 0), (expression, gpp.stderr[-1500:], checked.stdout + checked.stderr)
+    said = checked.stdout + checked.stderr
+    warned = any(w in said for w in WARNED)
+    assert warned == (gpp.returncode != 0), (statement, gpp.stderr[-1500:], said)
+
+
+# What STruC++ and plc (and MATIEC, whose C does the same: docs/openplc-v4.md) compute alike and apart: a function
+# block's VAR_IN_OUT copied in and back (given twice; a global the block also writes), and a STRING longer than
+# 126 characters, which only CONCAT, INSERT and REPLACE make (rule strucpp-string-length).
+PROBE = """FUNCTION_BLOCK FB_Two
+VAR_IN_OUT a : INT; b : INT; END_VAR
+a := a + 1;
+b := b + 10;
+END_FUNCTION_BLOCK
+FUNCTION_BLOCK FB_Ext
+VAR_IN_OUT a : INT; END_VAR
+VAR_EXTERNAL g : INT; END_VAR
+a := a + 1;
+g := g + 10;
+END_FUNCTION_BLOCK
+FUNCTION_BLOCK FB_Probe
+VAR_OUTPUT Twice : INT; Ext : INT; Chars : INT; END_VAR
+VAR x : INT; f : FB_Two; e : FB_Ext; s : STRING; END_VAR
+VAR_EXTERNAL g : INT; END_VAR
+x := 0;
+g := 0;
+f(a := x, b := x);
+e(a := g);
+Twice := x;
+Ext := g;
+s := '{hundred}';
+s := CONCAT(s, s);
+Chars := LEN(s);
+END_FUNCTION_BLOCK
+PROGRAM Main
+VAR p : FB_Probe; Twice : INT; Ext : INT; Chars : INT; END_VAR
+p();
+Twice := p.Twice;
+Ext := p.Ext;
+Chars := p.Chars;
+END_PROGRAM
+CONFIGURATION Config0
+VAR_GLOBAL g : INT; END_VAR
+RESOURCE Res0 ON PLC
+TASK t0(INTERVAL := T#4ms, PRIORITY := 0);
+PROGRAM MainInst WITH t0 : Main;
+END_RESOURCE
+END_CONFIGURATION
+""".replace("{hundred}", "x" * 100)
+PROBE_TEST = """TEST 'probe'
+VAR p : FB_Probe; END_VAR
+p();
+ASSERT_EQ(p.Twice, {twice}, 'twice');
+ASSERT_EQ(p.Ext, {ext}, 'ext');
+ASSERT_EQ(p.Chars, {chars}, 'chars');
+END_TEST
+"""
+
+
+def test_in_out_copies_agree_with_plc_and_a_long_string_differs_where_the_v4_target_warns(tmp_path):
+    strucpp, _include = _strucpp()
+    _gpp()
+    from harness import run_st
+    run = run_st(PROBE, scans=1)
+    ours = {k: run.value(f"CONFIG0.RES0.MAININST.{k.upper()}") for k in ("twice", "ext", "chars")}
+    assert ours == {"twice": 10, "ext": 1, "chars": 126}     # copied in and back; a STRING keeps 126 characters
+    source, test = tmp_path / "probe.st", tmp_path / "probe_test.st"
+    source.write_text(PROBE)
+    test.write_text(PROBE_TEST.format(**{**ours, "chars": 200}))
+    ran = subprocess.run([*strucpp, str(source), "--test", str(test)], capture_output=True, text=True,
+                         timeout=TIMEOUT_S)
+    assert ran.returncode == 0 and "1 passed" in ran.stdout, (ran.stdout + ran.stderr)[-3000:]
+    checked = subprocess.run([sys.executable, "-m", "plc.cli", "check", "--target", "openplc-v4", str(source)],
+                             capture_output=True, text=True, timeout=600)
+    said = checked.stdout + checked.stderr
+    assert said.count("warning: portability:") == 1 and "the result of CONCAT can be longer than 126" in said, said

@@ -71,7 +71,7 @@ RULES: dict[str, Rule] = {
                               "initialise the elements in code"),
     "subrange-default": Rule("MATIEC starts an inline subrange variable at 0, not at its lower bound {lo}",
                              "give it an initial value, or declare the subrange as a TYPE"),
-    "time-conversion": Rule("{call} counts seconds in OpenPLC's MATIEC (not milliseconds)",
+    "time-conversion": Rule("{call} counts seconds in OpenPLC's MATIEC and milliseconds in STruC++ (OpenPLC v4)",
                             "keep durations as TIME and compare TIME values"),
     "time-inexact": Rule("OpenPLC v3 makes T#{text} {openplc} ns, not {exact} ns: its __time_to_timespec truncates "
                          "(x86-64), so a sum of it drifts and a comparison with it can flip", "{hint}"),
@@ -128,6 +128,11 @@ RULES: dict[str, Rule] = {
                               "the left operand already decides, and an index out of its bounds stops the program "
                               "there (an exception), where MATIEC and plc skip the read",
                               "read {array}[...] inside an IF that checks {index} first", "openplc-v4"),
+    "strucpp-string-call": Rule("STruC++ (OpenPLC v4) has no C++ for {call} of {why}: g++ refuses it", "{hint}",
+                                "openplc-v4"),
+    "strucpp-string-length": Rule("the result of {call} can be longer than 126 characters: a plain STRING keeps 126 "
+                                  "in OpenPLC v3 (MATIEC) and 254 in STruC++ (OpenPLC v4)",
+                                  "cut it the same on both: LEFT({call}(...), 126)", "openplc-v4"),
     "strucpp-not-int": Rule("STruC++ (OpenPLC v4) writes the {op} under this NOT as C++ '{cpp}' of {operands}, "
                             "which gives an int, and its NOT takes bit types only: g++ refuses the C++",
                             "give the {op} to a variable and write NOT of that variable, or for comparisons apply De "

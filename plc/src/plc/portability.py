@@ -90,6 +90,8 @@ def lint(files: list[A.SourceFile], prog, diags: Diagnostics, builtin: set[str],
                     strucpp_names(item, prog, diags)
                     strucpp_and_guards(item, diags)
                     strucpp_not_ints(item, diags)
+                    strucpp_string_lengths(item, diags)
+                    strucpp_string_calls(item, diags)
                 if not errors_inside(item, diags):   # a syntax error may have emptied a statement list
                     statement_lists(item.body, item.pos, f"{item.kind} {item.text}", diags)
                 if item.kind == "FUNCTION" and not item.blocks:
@@ -417,6 +419,52 @@ def strucpp_not_ints(pou: A.Pou, diags: Diagnostics) -> None:
             operands = f"{left} and {right}"
         report(diags, "strucpp-not-int", node.pos, "openplc-v4", op="AND" if inner.op == "&" else inner.op,
                cpp=BITWISE[inner.op], operands=operands)
+
+
+GROWING = ("CONCAT", "INSERT", "REPLACE")
+
+
+def strucpp_string_lengths(pou: A.Pou, diags: Diagnostics) -> None:
+    """A plain STRING holds 126 characters in OpenPLC v3 (MATIEC) and 254 in STruC++ (OpenPLC v4): only CONCAT,
+    INSERT and REPLACE make a string longer than the literals (at most 125 characters, rule string-literal), and
+    their result is the same on both when LEFT(..., n) with n <= 126 takes it."""
+    cut: set[int] = set()
+    nodes = [n for stmt in pou.body for n in A.walk(stmt)]
+    for node in nodes:
+        if isinstance(node, A.Call) and node.func.upper() == "LEFT" and len(node.args) == 2:
+            length = node.args[1].value
+            if isinstance(length, A.IntLit) and length.value <= 126 and node.args[0].value is not None:
+                cut.add(id(node.args[0].value))
+    for node in nodes:
+        if isinstance(node, A.Call) and node.func.upper() in GROWING and id(node) not in cut \
+                and getattr(node.ty, "name", None) == "STRING":
+            report(diags, "strucpp-string-length", node.pos, "openplc-v4", call=node.text or node.func.upper())
+
+
+# the standard string functions whose first STRING input STruC++'s runtime takes only as a variable or a function's
+# result (no overload for a literal, a C++ const char*)
+STRING_FIRST_NOT_LITERAL = ("LEFT", "RIGHT", "MID", "LEN", "DELETE", "INSERT", "REPLACE")
+
+
+def strucpp_string_calls(pou: A.Pou, diags: Diagnostics) -> None:
+    """String function calls STruC++'s C++ runtime has no overload for (g++ refuses them): CONCAT of more than
+    two strings, CONCAT of two literals, and a literal as the first input of LEFT, RIGHT, MID, LEN, DELETE,
+    INSERT and REPLACE."""
+    for node in (n for stmt in pou.body for n in A.walk(stmt)):
+        if not isinstance(node, A.Call):
+            continue
+        func = node.func.upper()
+        values = node.std_args or [a.value for a in node.args if not a.output]
+        name = node.text or func
+        if func == "CONCAT" and len(values) > 2:
+            report(diags, "strucpp-string-call", node.pos, "openplc-v4", call=name,
+                   why=f"{len(values)} strings (it takes two)", hint="nest the calls: CONCAT(CONCAT(a, b), c)")
+        elif func == "CONCAT" and len(values) == 2 and all(isinstance(v, A.StrLit) for v in values):
+            report(diags, "strucpp-string-call", node.pos, "openplc-v4", call=name, why="two literals",
+                   hint="write the joined literal")
+        elif func in STRING_FIRST_NOT_LITERAL and values and isinstance(values[0], A.StrLit):
+            report(diags, "strucpp-string-call", node.pos, "openplc-v4", call=name, why="a literal as its first input",
+                   hint="give the literal to a STRING variable first")
 
 
 def strucpp_type_names(td: A.TypeDecl, diags: Diagnostics) -> None:
