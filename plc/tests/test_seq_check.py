@@ -81,7 +81,7 @@ def test_default_configs_check_clean_without_warnings():
 
 def test_each_default_sequence_file_checks_clean_on_its_own():
     files = sorted(CONFIG_INDEX.parent.glob("*.seq"))
-    assert {f.name for f in files} == {"home.seq", "put.seq", "get.seq", "length.seq"}
+    assert {f.name for f in files} == {"home.seq", "put.seq", "get.seq", "length.seq", "lube.seq", "alarm.seq"}
     run = run_cli("check", "--werror", *files)
     assert run.status == 0, run.err
 

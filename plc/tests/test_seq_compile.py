@@ -175,7 +175,7 @@ def test_an_ifin_line_compiles_to_a_guarded_step(tmp_path):
     home.write_text("IFIN 20 1 MOVEABS Z P1\nHOME ROTARY\n")
     index = tmp_path / "sequences.toml"
     text = CONFIG_INDEX.read_text(encoding="utf-8").replace('home = "home.seq"', f'home = "{home}"')
-    for name in ("put", "get", "length"):
+    for name in ("put", "get", "length", "lube", "alarm"):
         text = text.replace(f'"{name}.seq"', f'"{CONFIG_INDEX.parent / (name + ".seq")}"')
     index.write_text(text)
     assembly, diags = assemble(index)

@@ -13,7 +13,7 @@ from pathlib import Path
 from .checker import Context, check_sequence
 from .diagnostics import Diagnostics
 from .encoding import IO_CHANNELS, MAX_TOOLS, Kind, Sequence
-from .index import IoMap, SequenceRef, SequenceSet, Values, load_index
+from .index import IoMap, ProcedureDef, SequenceRef, SequenceSet, Values, load_index
 from .model import SequenceFile
 from .parser import parse_text
 
@@ -26,7 +26,8 @@ class Assembly:
 
     seqset: SequenceSet
     sequences: list[Sequence] = field(default_factory=list)  # sequences[i] has number i + 1
-    select: dict[tuple[Kind, int], int] = field(default_factory=dict)  # (kind, tool or 0) -> number
+    select: dict[tuple[Kind, int], int] = field(default_factory=dict)  # (kind, tool or 0 or procedure slot) -> number
+    procedures: list[tuple[ProcedureDef, int]] = field(default_factory=list)  # file order, with sequence numbers
 
     def users(self, number: int) -> list[tuple[Kind, int]]:
         return [key for key, n in self.select.items() if n == number]
@@ -71,7 +72,8 @@ class _Files:
 
 
 def _context(seqset: SequenceSet, kind: Kind, tools: tuple[int, ...], note: str = "") -> Context:
-    return Context(kind, tools, seqset.io, seqset.axes, seqset.tools, seqset.values, seqset.index_name, note)
+    io = seqset.io if kind.changer else seqset.procedure_io
+    return Context(kind, tools, io, seqset.axes, seqset.tools, seqset.values, seqset.index_name, note)
 
 
 def _default_context(kind: Kind, tool: int) -> Context:
@@ -120,15 +122,38 @@ def check_set(index_path: Path, diags: Diagnostics) -> Assembly | None:
         for ref in refs:
             for tool in (seqset.tools_of(ref) or (0,)):
                 steps[(kind, tool)] = (ref.file, result[tool])
+    bodies = _check_procedures(seqset, files, diags)
     if diags.has_errors():
         return None
-    return _number(seqset, steps)
+    return _number(seqset, steps, bodies)
 
 
-def _number(seqset: SequenceSet, steps: dict[tuple[Kind, int], tuple]) -> Assembly:
+def _procedure_referrer(seqset: SequenceSet, proc: ProcedureDef) -> tuple[str, int, int, str]:
+    lines = seqset.index_path.read_text(encoding="utf-8").splitlines()
+    source = lines[proc.line - 1] if 0 < proc.line <= len(lines) else ""
+    return (seqset.index_name, proc.line, proc.col, source)
+
+
+def _check_procedures(seqset: SequenceSet, files: _Files, diags: Diagnostics) -> dict[int, tuple]:
+    """Each procedure's body checked as a procedure (once per file): slot -> steps."""
+    checked: dict[Path, tuple | None] = {}
+    bodies: dict[int, tuple] = {}
+    for proc in seqset.procedures:
+        key = proc.path.resolve()
+        if key not in checked:
+            seq = files.get(proc.path, _procedure_referrer(seqset, proc))
+            result = None if seq is None else check_sequence(seq, _context(seqset, Kind.PROCEDURE, ()), diags)
+            checked[key] = None if result is None else result[0]
+        if checked[key] is not None:
+            bodies[proc.slot] = checked[key]
+    return bodies
+
+
+def _number(seqset: SequenceSet, steps: dict[tuple[Kind, int], tuple], bodies: dict[int, tuple]) -> Assembly:
+    """Tool-change sequences first (Home, Length, Put 1..N, Get 1..N), then the procedures in file order."""
     assembly = Assembly(seqset)
     numbers: dict[tuple, int] = {}
-    for kind in Kind:
+    for kind in (k for k in Kind if k.changer):
         for tool in (range(1, seqset.tools + 1) if kind.per_tool else (0,)):
             if (kind, tool) not in steps:
                 continue
@@ -139,6 +164,14 @@ def _number(seqset: SequenceSet, steps: dict[tuple[Kind, int], tuple]) -> Assemb
                 assembly.sequences.append(sequence)
                 numbers[key] = len(assembly.sequences)
             assembly.select[(kind, tool)] = numbers[key]
+    for proc in seqset.procedures:
+        sequence = Sequence(Kind.PROCEDURE, proc.slot, proc.file, bodies[proc.slot])
+        key = sequence.body_key()
+        if key not in numbers:
+            assembly.sequences.append(sequence)
+            numbers[key] = len(assembly.sequences)
+        assembly.select[(Kind.PROCEDURE, proc.slot)] = numbers[key]
+        assembly.procedures.append((proc, numbers[key]))
     return assembly
 
 
@@ -174,6 +207,9 @@ def _contexts_for(path: Path, seqset: SequenceSet | None, kind: Kind, tool: int)
     if seqset is None:
         return [_default_context(kind, tool)]
     refs = [ref for ref in seqset.refs if ref.path.resolve() == path.resolve()]
+    procedure = any(proc.path.resolve() == path.resolve() for proc in seqset.procedures)
+    if not refs and (procedure or kind is Kind.PROCEDURE):
+        return [_context(seqset, Kind.PROCEDURE, ())]
     if not refs:
         return [_context(seqset, kind, (tool,) if kind.per_tool else ())]
     contexts = []

@@ -102,6 +102,10 @@ def _feedrate(v: Decimal) -> int | str:
     return int(v)
 
 
+_WORDS = {Message: "MESSAGE", MoveAbs: "MOVEABS", MoveToEdge: "MOVETOEDGE", Feedrate: "FEEDRATE",
+          Spindle: "SPINDLE", PositionRotary: "POSITION ROTARY", HomeRotary: "HOME ROTARY"}
+
+
 class _Checker:
     def __init__(self, seq: SequenceFile, ctx: Context, diags: Diagnostics):
         self.seq = seq
@@ -207,11 +211,13 @@ class _Checker:
         allowed = self.ctx.io.outputs if output else self.ctx.io.inputs
         if allowed is None or channel in allowed:
             return channel  # None: the index lacks the list, which it reports itself
-        what, verb, key, prefix = ("output", "OUT may write", "outputs", "QX") if output else \
-                                  ("input", "sequences may read", "inputs", "IX")
+        what, verb, key, prefix = ("output", "OUT may write", self.ctx.io.output_key, "QX") if output else \
+                                  ("input", "sequences may read" if self.ctx.kind.changer else "procedures may read",
+                                   self.ctx.io.input_key, "IX")
         where = f"[io] {key} of {self.ctx.index_name}" if self.ctx.index_name else f"the I/O map ([io] {key})"
         address = f", here {channel_address(prefix, channel)}" if channel < 64 else ""
-        self.error(number.span, f"{what} {channel} is outside the I/O map: {verb} {key} {format_ranges(allowed)}",
+        listed = format_ranges(allowed) if allowed else "(none)"
+        self.error(number.span, f"{what} {channel} is outside the I/O map: {verb} {key} {listed}",
                    hint=f"{where}; channel n is %{prefix}(n/8).(n mod 8){address}")
         return None
 
@@ -239,6 +245,12 @@ class _Checker:
     # --- commands ---
     def steps(self, command: Command) -> dict[int, Step] | None:
         """The command's step for each tool, or None when it has an error (already reported)."""
+        if self.ctx.kind is Kind.PROCEDURE and not isinstance(command, (Out, WaitIn, Delay, IfIn)):
+            word = "DIALOG" if isinstance(command, Message) and command.dialog else _WORDS[type(command)]
+            self.error(command.span, f"{word} is not allowed in a procedure",
+                       hint="a procedure may use OUT, WAITIN, DELAY and IFIN: the host mailbox, the carousel and "
+                            "the operator belong to the tool change (docs/procedures.md)")
+            return None
         if isinstance(command, IfIn):
             return self.guarded(command)
         base = {"line": command.line, "source": command.source.strip()}

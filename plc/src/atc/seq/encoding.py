@@ -20,6 +20,8 @@ MAX_TOOLS = MAX_POCKETS  # one tool per carousel pocket (pocket n holds tool n):
 P_COUNT = 230  # P1..P230, the Logosol P table (23 rows of 10)
 Q_COUNT = 20  # TnQ1..TnQ20 per tool, the Logosol Q table (2 rows of 10 per tool)
 IO_CHANNELS = 64  # channel n is %IX/%QX (n / 8).(n mod 8); the runner's arrays are ARRAY[0..63] OF BOOL
+MAX_PROCEDURES = 16  # user procedures of one machine (FB_ProcedureScheduler's slots 1..16)
+PROCEDURE_MODES = ("every interval", "at program start", "after a successful program end", "on error or stop")
 MAX_STEPS = 500  # steps of one sequence (its End step not counted)
 MAX_MESSAGE = 80  # characters of a MESSAGE/DIALOG text (the IEC default STRING length)
 DINT_MAX = 2**31 - 1
@@ -35,6 +37,7 @@ class Kind(enum.Enum):
     LENGTH = ("length", "KindLengthMeasurement", "Length Measurement")
     PUT = ("put", "KindPutTool", "Put Tool")
     GET = ("get", "KindGetTool", "Get Tool")
+    PROCEDURE = ("procedure", "KindProcedure", "Procedure")  # a user procedure (docs/procedures.md): tool = its slot
 
     def __init__(self, key: str, st_name: str, title: str):
         self.key = key  # name in the index's [sequences] table
@@ -44,6 +47,11 @@ class Kind(enum.Enum):
     @property
     def per_tool(self) -> bool:
         return self in (Kind.PUT, Kind.GET)
+
+    @property
+    def changer(self) -> bool:
+        """A tool-change sequence named in [sequences] (not a user procedure)."""
+        return self is not Kind.PROCEDURE
 
     @classmethod
     def from_key(cls, key: str) -> "Kind":
@@ -96,6 +104,20 @@ STEP_FIELDS = (
     ("guarded", "BOOL", "IFIN: the step runs only if input guardChannel reads guardLevel when it begins"),
     ("guardChannel", "INT", "IFIN input channel n = %IX(n / 8).(n mod 8)"),
     ("guardLevel", "BOOL", "IFIN level that lets the step run"),
+)
+
+
+# Fields of ST_ProcedureDef (F_ProcedureDef): one user procedure of [[procedures]] (docs/procedures.md).
+PROCEDURE_FIELDS = (
+    ("defined", "BOOL", "the slot holds a procedure (FALSE past the last one)"),
+    ("id", "INT", "the procedure's ID"),
+    ("mode", "INT", "0 every interval, 1 at program start, 2 after a successful program end, 3 on error or stop"),
+    ("enabled", "BOOL", "FALSE: never started"),
+    ("interval", "TIME", "mode 0: from one start to the next"),
+    ("stopOnError", "BOOL", "TRUE: a failed step ends the procedure; FALSE: the failure is recorded, it goes on"),
+    ("canStopGCode", "BOOL", "TRUE: a failure raises the procedure fault (the G-code program stops)"),
+    ("errMsg", "INT", "F_SequenceMessage number of the ErrMsg text; 0 = none"),
+    ("sequence", "INT", "its sequence number (F_SequenceSelect(KindProcedure, slot))"),
 )
 
 

@@ -21,6 +21,13 @@ kind and the P/Q values. Its format is described in docs/sequences.md; a short e
     P1 = -5.0
     T2Q1 = 60
 
+    [[procedures]]           # user procedures, run by the PLC in this order (docs/procedures.md)
+    id = 0
+    name = "lube"
+    mode = 0                 # 0 every interval ms, 1 program start, 2 program ended OK, 3 error or stop
+    interval = 240000
+    file = "lube.seq"
+
 The index is read with the toolchain's one TOML reader (plc.tomlconf): every problem is reported at once, at the
 line and column of its key, the fixed tables checked by their schema (unknown keys with a did-you-mean).
 """
@@ -37,7 +44,18 @@ from plc.diagnostics import SEQ
 from plc.tomlconf import Bool, Check, Field, Int, Invalid, Str, Table
 
 from .diagnostics import Diagnostics, format_ranges
-from .encoding import AXES, DINT_MAX, IO_CHANNELS, MAX_TOOLS, P_COUNT, Q_COUNT, SCALE, Kind
+from .encoding import (
+    AXES,
+    DINT_MAX,
+    IO_CHANNELS,
+    MAX_MESSAGE,
+    MAX_PROCEDURES,
+    MAX_TOOLS,
+    P_COUNT,
+    Q_COUNT,
+    SCALE,
+    Kind,
+)
 
 def _axes(value: object) -> str:
     """Distinct letters of AXES (either case), in AXES order."""
@@ -61,9 +79,39 @@ IO = Table((
           hint=_CHANNELS_HINT.format(key="inputs", prefix="IX")),
     Field("outputs", _LISTED, "the outputs sequences may use", required=True,
           hint=_CHANNELS_HINT.format(key="outputs", prefix="QX")),
+    Field("procedure_inputs", _LISTED, "the inputs user procedures may read",
+          hint=_CHANNELS_HINT.format(key="procedure_inputs", prefix="IX")),
+    Field("procedure_outputs", _LISTED, "the outputs user procedures own (never the tool change's)",
+          hint=_CHANNELS_HINT.format(key="procedure_outputs", prefix="QX")),
 ))
-SEQUENCES = Table(tuple(Field(kind.key, _LISTED, f"the {kind.title} sequence") for kind in Kind))
-SECTIONS = {"machine": MACHINE, "io": IO, "sequences": SEQUENCES, "values": None}
+SEQUENCES = Table(tuple(Field(kind.key, _LISTED, f"the {kind.title} sequence") for kind in Kind if kind.changer))
+SECTIONS = {"machine": MACHINE, "io": IO, "sequences": SEQUENCES, "values": None, "procedures": None}
+MAX_INTERVAL_MS = 86_400_000  # a day: FB_ProcedureScheduler's clock restarts daily
+
+
+def _text(value: object) -> str:
+    """An ErrMsg: 0..MAX_MESSAGE printable ASCII characters (F_SequenceMessage's texts)."""
+    if not isinstance(value, str):
+        raise Invalid(f"expected a text, got {value!r}")
+    if any(not " " <= ch <= "~" for ch in value) or "/" in value:
+        raise Invalid("may hold printable ASCII only, without '/'")
+    if len(value) > MAX_MESSAGE:
+        raise Invalid(f"is {len(value)} characters long; at most {MAX_MESSAGE} fit")
+    return value
+
+
+PROCEDURE = Table((
+    Field("id", Int(0, 32767), "the procedure's ID (the seed's Proc_ID), unique in the set", required=True),
+    Field("name", Str(), "the procedure's name", required=True),
+    Field("enabled", Bool(), "FALSE: checked and compiled, never run", default=True),
+    Field("mode", Int(0, 3), "0 every interval ms, 1 at program start, 2 after a successful end, 3 on error or stop",
+          required=True),
+    Field("interval", Int(0, MAX_INTERVAL_MS), "mode 0: ms from one start to the next", default=0),
+    Field("stop_on_error", Bool(), "TRUE: a failed step ends the procedure; FALSE: it goes on", default=True),
+    Field("can_stop_gcode", Bool(), "TRUE: a failure stops the G-code program (fault -150)", default=False),
+    Field("err_msg", Check(_text), "the operator message of a failure", default=""),
+    Field("file", Str(), "the procedure's body, a sequence file", required=True),
+))
 
 _PKEY = re.compile(r"P(\d+)")
 _QKEY = re.compile(r"T(\d+)Q(\d+)")
@@ -80,6 +128,8 @@ class IoMap:
 
     inputs: frozenset[int] | None
     outputs: frozenset[int] | None
+    input_key: str = "inputs"    # the [io] keys that declared them (hints)
+    output_key: str = "outputs"
 
 
 @dataclass(frozen=True)
@@ -102,6 +152,25 @@ class SequenceRef:
     col: int
 
 
+@dataclass(frozen=True)
+class ProcedureDef:
+    """One [[procedures]] entry: the seed's fields, its body file and where it was written. slot = file order, 1.."""
+
+    slot: int
+    id: int
+    name: str
+    enabled: bool
+    mode: int
+    interval_ms: int
+    stop_on_error: bool
+    can_stop_gcode: bool
+    err_msg: str
+    file: str
+    path: Path
+    line: int
+    col: int
+
+
 @dataclass
 class SequenceSet:
     index_path: Path
@@ -113,6 +182,8 @@ class SequenceSet:
     io: IoMap
     values: Values
     refs: list[SequenceRef]
+    procedures: list[ProcedureDef] = field(default_factory=list)
+    procedure_io: IoMap = IoMap(frozenset(), frozenset(), "procedure_inputs", "procedure_outputs")
 
     def ref_for(self, kind: Kind, tool: int = 0) -> SequenceRef | None:
         """The entry that runs for this kind and tool, honouring always_use_tool1."""
@@ -151,13 +222,21 @@ class _IndexReader:
         axes = None if "axes" in checked.bad else checked["axes"]
         return checked["name"], checked.get("tools", 0), axes, checked["always_use_tool1"]
 
-    def io(self, table: dict | None) -> IoMap:
+    def io(self, table: dict | None) -> tuple[IoMap, IoMap]:
+        """The tool change's channels and the procedures' (absent procedure lists: none)."""
         if table is None:
-            return IoMap(None, None)
+            return IoMap(None, None), IoMap(None, None, "procedure_inputs", "procedure_outputs")
         channels: dict[str, frozenset[int] | None] = {}
-        for key in ("inputs", "outputs"):
+        for key in ("inputs", "outputs", "procedure_inputs", "procedure_outputs"):
             channels[key] = frozenset(self.channel_list(table[key], ("io", key))) if key in table else None
-        return IoMap(channels["inputs"], channels["outputs"])
+        shared = (channels["outputs"] or frozenset()) & (channels["procedure_outputs"] or frozenset())
+        if shared:
+            self.error(("io", "procedure_outputs"), f"[io] procedure_outputs: {format_ranges(sorted(shared))} "
+                       "also in [io] outputs: an output belongs to the tool change or to the procedures",
+                       hint="a procedure never drives what a tool-change sequence drives (docs/procedures.md)")
+        return (IoMap(channels["inputs"], channels["outputs"]),
+                IoMap(channels["procedure_inputs"] or frozenset(), channels["procedure_outputs"] or frozenset(),
+                      "procedure_inputs", "procedure_outputs"))
 
     def channel_list(self, items: object, key: tuple[str, ...]) -> set[int]:
         channels: set[int] = set()
@@ -182,7 +261,7 @@ class _IndexReader:
 
     def sequences(self, table: dict, tools: int, always: bool) -> list[SequenceRef]:
         refs: list[SequenceRef] = []
-        for kind in Kind:
+        for kind in (k for k in Kind if k.changer):
             entry = table.get(kind.key)
             if entry is None:
                 continue
@@ -222,6 +301,39 @@ class _IndexReader:
         place = self.doc.places.get(key)
         line, col = (place.key.line, place.key.col) if place else (0, 0)
         return SequenceRef(kind, tool, file, path, line, col)
+
+    def procedures(self, items: object) -> list[ProcedureDef]:
+        """[[procedures]] in file order: each checked by its schema, IDs unique, mode 0 with an interval."""
+        if not isinstance(items, list):
+            if items is not None:
+                self.error(("procedures",), "procedures must be written as [[procedures]] tables, one per procedure")
+            return []
+        out: list[ProcedureDef] = []
+        ids: dict[int, int] = {}
+        for n, item in enumerate(items):
+            key = ("procedures", n)
+            checked = PROCEDURE.check(self.doc, key, item, f"[[procedures]] {n + 1}:")
+            if not checked.ok:
+                continue
+            if n >= MAX_PROCEDURES:
+                self.error(key, f"at most {MAX_PROCEDURES} procedures; this is procedure {n + 1}")
+                continue
+            if checked["id"] in ids:
+                self.error(key + ("id",), f"procedure id {checked['id']} is already procedure {ids[checked['id']]}'s",
+                           hint="each procedure has its own id")
+                continue
+            ids[checked["id"]] = n + 1
+            if checked["mode"] == 0 and checked["interval"] <= 0:
+                self.error(key + ("mode",), "mode 0 runs every interval ms: give interval > 0",
+                           hint="e.g. interval = 240000 (4 minutes)")
+                continue
+            place = self.doc.places.get(key + ("file",))
+            line, col = (place.key.line, place.key.col) if place else (0, 0)
+            out.append(ProcedureDef(n + 1, checked["id"], checked["name"], checked["enabled"], checked["mode"],
+                                    checked["interval"], checked["stop_on_error"], checked["can_stop_gcode"],
+                                    checked["err_msg"], checked["file"], self.path.parent / checked["file"],
+                                    line, col))
+        return out
 
     def values(self, table: dict, tools: int) -> Values:
         values = Values()
@@ -293,10 +405,11 @@ def load_index(path: Path, name: str, diags: Diagnostics) -> SequenceSet | None:
     if not isinstance(values_table, dict):
         values_table = {}                   # check_sections: 'values' must be a section [values]
     set_name, tools, axes, always = reader.machine(checked.get("machine"))
-    io = reader.io(io_table)
+    io, procedure_io = reader.io(io_table)
     refs = reader.sequences(seq_table, tools, always)
     values = reader.values(values_table, tools)
-    seqset = SequenceSet(path, name, set_name, tools, axes, always, io, values, refs)
+    procedures = reader.procedures(data.get("procedures"))
+    seqset = SequenceSet(path, name, set_name, tools, axes, always, io, values, refs, procedures, procedure_io)
     _check_coverage(seqset, reader, seq_table)
     for d in doc.diagnostics:
         diags.add(d)

@@ -19,7 +19,7 @@ from plc.timelit import ms_literal
 from ..project import PROJECT_FILE
 from .assemble import Assembly
 from .diagnostics import format_ranges
-from .encoding import AXES, STEP_FIELDS, Kind, Opcode, Step
+from .encoding import AXES, PROCEDURE_FIELDS, STEP_FIELDS, Kind, Opcode, Step
 
 INDENT = "    "
 
@@ -64,11 +64,15 @@ class _Writer:
 
 
 def _message_numbers(assembly: Assembly) -> dict[str, int]:
+    """MESSAGE/DIALOG texts in step order, then the procedures' ErrMsg texts: one number per distinct text."""
     numbers: dict[str, int] = {}
     for sequence in assembly.sequences:
         for step in sequence.steps:
             if step.opcode in (Opcode.MESSAGE, Opcode.DIALOG) and step.text not in numbers:
                 numbers[step.text] = len(numbers) + 1
+    for proc, _ in assembly.procedures:
+        if proc.err_msg and proc.err_msg not in numbers:
+            numbers[proc.err_msg] = len(numbers) + 1
     return numbers
 
 
@@ -76,6 +80,9 @@ def _users(assembly: Assembly, number: int) -> str:
     """'Put Tool, tools 1-6' for the header and the CASE comments."""
     users = assembly.users(number)
     kind = users[0][0]
+    if kind is Kind.PROCEDURE:
+        names = {proc.slot: proc for proc, _ in assembly.procedures}
+        return ", ".join(f"Procedure {slot} (id {names[slot].id}, {comment(names[slot].name)})" for _, slot in users)
     if not kind.per_tool:
         return kind.title
     tools = [tool for _, tool in users]
@@ -93,6 +100,13 @@ def _header(w: _Writer, assembly: Assembly, index_name: str, out_name: str) -> N
     for number, sequence in enumerate(assembly.sequences, start=1):
         w(f"     {number:3d}: {_users(assembly, number)}, {comment(sequence.file)}, {len(sequence.steps)} steps")
     w("")
+    if assembly.procedures:
+        w("   Procedures (slot: id, name, mode, sequence), run by FB_ProcedureScheduler (docs/procedures.md):")
+        for proc, number in assembly.procedures:
+            timing = f", every {proc.interval_ms} ms" if proc.mode == 0 else ""
+            w(f"     {proc.slot:3d}: id {proc.id}, {comment(proc.name)}, mode {proc.mode}{timing}, sequence {number}"
+              + ("" if proc.enabled else ", disabled"))
+        w("")
     w("   How FB_SequenceRunner reads these tables (docs/sequences.md has the full description):")
     w("   - seq := F_SequenceSelect(kind, tool) gives the sequence number, 0 when the machine has none.")
     w("   - F_SequenceStep(seq, index) gives step index (1-based) of sequence seq; past the last step, and for an")
@@ -123,6 +137,11 @@ def _types(w: _Writer) -> None:
     for name, st_type, note in STEP_FIELDS:
         w(f"{name} : {st_type}; (* {comment(note)} *)", 2)
     w("END_STRUCT;", 1)
+    w("")
+    w("ST_ProcedureDef : STRUCT", 1)
+    for name, st_type, note in PROCEDURE_FIELDS:
+        w(f"{name} : {st_type}; (* {comment(note)} *)", 2)
+    w("END_STRUCT;", 1)
     w("END_TYPE")
     w("")
 
@@ -140,6 +159,12 @@ def _select(w: _Writer, assembly: Assembly) -> None:
         w("CASE kind OF")
         for kind in present:
             w(f"{kind.st_name}:", 1)
+            if kind is Kind.PROCEDURE:
+                w("CASE tool OF (* the procedure's slot *)", 2)
+                for proc, number in assembly.procedures:
+                    w(f"{proc.slot}: F_SequenceSelect := {number};", 3)
+                w("END_CASE;", 2)
+                continue
             if not kind.per_tool:
                 w(f"F_SequenceSelect := {assembly.select[(kind, 0)]};", 2)
                 continue
@@ -224,6 +249,46 @@ def _messages(w: _Writer, messages: dict[str, int]) -> None:
     w("END_FUNCTION")
 
 
+def _procedures(w: _Writer, assembly: Assembly, messages: dict[str, int]) -> None:
+    w("FUNCTION F_ProcedureDef : ST_ProcedureDef")
+    w("VAR_INPUT")
+    w("slot : INT; (* 1.. in the order of [[procedures]]; past the last gives defined = FALSE *)", 1)
+    w("END_VAR")
+    w("VAR")
+    w("procData : ST_ProcedureDef; (* every field starts at its default on each call *)", 1)
+    w("END_VAR")
+    if assembly.procedures:
+        w("CASE slot OF")
+        for proc, number in assembly.procedures:
+            w(f"{proc.slot}: (* {comment(proc.name)}: {comment(proc.file)} *)", 1)
+            w("procData.defined := TRUE;", 2)
+            w(f"procData.id := {proc.id};", 2)
+            w(f"procData.mode := {proc.mode};", 2)
+            w(f"procData.enabled := {st_bool(proc.enabled)};", 2)
+            w(f"procData.interval := {st_time(proc.interval_ms)};", 2)
+            w(f"procData.stopOnError := {st_bool(proc.stop_on_error)};", 2)
+            w(f"procData.canStopGCode := {st_bool(proc.can_stop_gcode)};", 2)
+            w(f"procData.errMsg := {messages.get(proc.err_msg, 0)};", 2)
+            w(f"procData.sequence := {number};", 2)
+        w("END_CASE;")
+    w("F_ProcedureDef := procData;")
+    w("END_FUNCTION")
+    w("")
+    w("FUNCTION F_ProcedureOutput : BOOL")
+    w("VAR_INPUT")
+    w("channel : INT; (* output channel n = %QX(n / 8).(n mod 8) *)", 1)
+    w("END_VAR")
+    w("(* TRUE for the outputs the procedures own ([io] procedure_outputs): forced FALSE on E-stop and failure *)")
+    w("F_ProcedureOutput := FALSE;")
+    owned = sorted(assembly.seqset.procedure_io.outputs or ())
+    if owned:
+        w("CASE channel OF")
+        w(f"{format_ranges(owned).replace('-', '..')}: F_ProcedureOutput := TRUE;", 1)
+        w("END_CASE;")
+    w("END_FUNCTION")
+    w("")
+
+
 def generate(assembly: Assembly, index_name: str, out_name: str) -> str:
     """The whole generated file."""
     w = _Writer()
@@ -232,5 +297,6 @@ def generate(assembly: Assembly, index_name: str, out_name: str) -> str:
     _types(w)
     _select(w, assembly)
     _steps(w, assembly, messages)
+    _procedures(w, assembly, messages)
     _messages(w, messages)
     return w.text()
