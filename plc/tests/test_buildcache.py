@@ -221,3 +221,30 @@ def test_a_parse_result_is_keyed_by_every_module_the_parser_imports():
     keyed = {str(p) for p in buildcache.parser_sources()}
     assert {str(Path(f).resolve()) for f in loaded} <= keyed and len(keyed) >= 6
     assert not any(p.name in ("codegen.py", "sema.py") for p in buildcache.parser_sources())
+
+
+def test_the_cache_keeps_to_its_size_dropping_the_least_recently_used_entries(tmp_path):
+    import os
+    cache = buildcache.Cache(tmp_path / "cache")
+    payload = b"x" * 1000
+    keys = [buildcache.sha256("entry", str(k)) for k in range(10)]
+    for age, key in enumerate(keys):
+        cache.store("parse", key, payload)
+        then = 1_000_000 + age                      # stored in order: keys[0] the oldest
+        os.utime(cache._path("parse", key, ""), (then, then))
+    assert cache.load("parse", keys[0]) == payload   # used now: the most recent
+    assert cache.trim(10**6) == 0                     # nothing new in this cache: the directory is not walked
+    cache.misses = 1
+    entry = len(buildcache.MAGIC) + 128 + len(payload)
+    assert cache.trim(10**6) == 0                     # within the limit: nothing removed
+    removed = cache.trim(6 * entry)                   # down to 3/4 of 6 entries: 4 entries stay
+    assert removed == 6
+    kept = [k for k in keys if cache.load("parse", k) is not None]
+    assert kept == [keys[0], *keys[7:]]               # the one just used and the three newest
+
+
+def test_the_size_limit_comes_from_plc_cache_max_mb(monkeypatch):
+    monkeypatch.setenv("PLC_CACHE_MAX_MB", "3")
+    assert buildcache.max_bytes() == 3 * 1024 * 1024
+    monkeypatch.setenv("PLC_CACHE_MAX_MB", "lots")
+    assert buildcache.max_bytes() == buildcache.DEFAULT_MAX_MB * 1024 * 1024

@@ -11,9 +11,13 @@ one cache in its build/plc-cache/ (git ignores build/; removing the directory is
 Every entry carries the SHA-256 of its payload and of its key; an entry whose payload or key does not match
 (a truncated write, a damaged disk, a file copied in by hand) is never used: it is built again and replaced.
 Entries are written to a temporary file and renamed, so a build stopped half-way leaves no half entry.
+
+The cache keeps to a size (PLC_CACHE_MAX_MB, default 256 MB): a command that added entries removes, as it ends,
+the least recently used ones beyond that (an entry used is touched), down to three quarters of it.
 """
 from __future__ import annotations
 
+import atexit
 import gc
 import hashlib
 import os
@@ -30,6 +34,7 @@ from .diagnostics import Diagnostics
 
 CACHE_DIR = Path("build") / "plc-cache"
 MAGIC = b"plc-cache 1\n"
+DEFAULT_MAX_MB = 256
 
 _active: Cache | None = None
 
@@ -96,9 +101,12 @@ class Cache:
         return self.root / kind / key[:2] / (key + suffix)
 
     def load(self, kind: str, key: str, suffix: str = "") -> bytes | None:
-        """The payload stored under `key`, or None when absent or not intact (its checksums do not match)."""
+        """The payload stored under `key`, or None when absent or not intact (its checksums do not match); an
+        entry found is touched (the least recently used go first when the cache is trimmed)."""
+        path = self._path(kind, key, suffix)
         try:
-            data = self._path(kind, key, suffix).read_bytes()
+            data = path.read_bytes()
+            os.utime(path)
         except OSError:
             return None
         head = len(MAGIC) + 128
@@ -122,6 +130,37 @@ class Cache:
             os.replace(tmp, path)
         except OSError:
             pass
+
+    def trim(self, limit_bytes: int) -> int:
+        """Remove the least recently used entries while the cache is larger than `limit_bytes`, down to three
+        quarters of it; returns the number of files removed.  Only a cache that grew in this process is looked
+        at (a fully cached command does not walk the directory)."""
+        if self.misses == 0:
+            return 0
+        files = []
+        for kind in ("parse", "obj"):
+            for dirpath, _dirs, names in os.walk(self.root / kind):
+                for name in names:
+                    path = os.path.join(dirpath, name)
+                    try:
+                        st = os.stat(path)
+                    except OSError:
+                        continue
+                    files.append((st.st_mtime, st.st_size, path))
+        total = sum(size for _t, size, _p in files)
+        if total <= limit_bytes:
+            return 0
+        removed = 0
+        for _mtime, size, path in sorted(files):
+            if total <= limit_bytes * 3 // 4:
+                break
+            try:
+                os.unlink(path)
+            except OSError:
+                continue
+            total -= size
+            removed += 1
+        return removed
 
     # -------------------------------------------------------------- parsing --
     def parsed(self, text: str, filename: str, diags: Diagnostics, parse_fn):
@@ -157,10 +196,20 @@ class Cache:
 
 
 def use(root: Path | None) -> Cache | None:
-    """Make the cache at `root` the one this process uses (None: no cache); return it."""
+    """Make the cache at `root` the one this process uses (None: no cache); return it.  As the process ends, the
+    cache is trimmed to its size limit (max_bytes)."""
     global _active
     _active = Cache(root) if root is not None else None
+    if _active is not None:
+        atexit.register(_active.trim, max_bytes())
     return _active
+
+
+def max_bytes() -> int:
+    """The cache's size limit: PLC_CACHE_MAX_MB (a whole number of megabytes), default DEFAULT_MAX_MB."""
+    text = os.environ.get("PLC_CACHE_MAX_MB", "")
+    megabytes = int(text) if text.isdigit() else DEFAULT_MAX_MB
+    return megabytes * 1024 * 1024
 
 
 def active() -> Cache | None:
@@ -209,6 +258,10 @@ def compile_units(cache: Cache, units: list[Unit], cc: str, flags: list[str], he
         obj = cache.root / "obj" / key[:2] / f"{key}.o"
         if obj.is_file() and cache.load("obj", key, ".sum") == _object_sum(obj):
             cache.hits += 1
+            try:
+                os.utime(obj)
+            except OSError:
+                pass
             objects[k] = obj
         else:
             todo.append((k, u, key, obj))
