@@ -198,3 +198,29 @@ def test_the_tool_database_program_serves_the_plcs_table(plc, tmp_path: Path):
     assert "T101 P3 Z1.5 D6 ;drill 6" in rest[4:]              # the second g serves the offsets kept by p
     assert rest[-1] == "FINI"
     assert offsets.read_text() == "T101 P0 Z1.5 D6 ;drill 6\n"
+
+
+def test_a_tool_database_put_with_another_pocket_is_a_table_edit(plc, tmp_path: Path):
+    """A `p` line whose pocket differs from the PLC's row becomes the PLC's edit command: done when the pocket is
+    free (the table and the pocket table follow), NAK with the PLC's reason when it is refused; the offsets are
+    kept either way, and both answers are logged."""
+    ok(plc.tools("clear", "T6"))                                     # pocket 6 free
+    offsets = tmp_path / "offsets.tbl"
+    cmd = [sys.executable, str(REPO / "configs" / "linuxcnc" / "bin" / "atc-tooldb"), "--port", str(plc.port),
+           "--offsets", str(offsets)]
+    talk = "p T101 P6 Z2 D6 ;moved\np T101 P5 Z3 D6 ;onto T5\np T101 P6 Z4 D6 ;same pocket\n"
+    r = subprocess.run(cmd, input=talk, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    refusal = "NAK the PLC refused T101 in pocket 5: refused: pocket outside the carousel or held by another row"
+    assert lines == ["v2.1", "FINI (update recvd) T101 P6 Z2 D6 ;moved", refusal,
+                     "FINI (update recvd) T101 P6 Z4 D6 ;same pocket"]
+    assert "atc-tooldb: p: T101 to pocket 6: the PLC's table row 3 set -> done" in r.stderr
+    assert "T101 to pocket 5: the PLC's table row 3 set -> refused: pocket outside the carousel" in r.stderr
+    assert r.stderr.count("row 3 set") == 2                           # the same pocket is no edit
+    table = plc.table()
+    assert table[101]["pocket"] == 6 and table[5]["pocket"] == 5
+    assert plc.read("PocketTool6", "PocketTool3") == {"PocketTool6": 101, "PocketTool3": 0}
+    assert offsets.read_text() == "T101 P0 Z4 D6 ;same pocket\n"
+    ok(plc.tools("set", "T101", "--pocket", "3"))
+    ok(plc.tools("set", "T6", "--row", "6", "--pocket", "6"))
