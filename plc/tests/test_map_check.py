@@ -186,7 +186,7 @@ def test_hal_pins_are_iov2_pins_in_the_right_direction(project):
 def test_host_bits_for_mb2hal_must_be_contiguous(project):
     edit(project / "modbus_map" / "map.toml", 'hal = "iocontrol.0.start-change"\n', '')
     one_error(check(project), "coil 402 lies inside the host bits that mb2hal writes in one FC15 transaction "
-              "(400..410) but is StartChange")
+              "(400..413) but is StartChange")
 
 
 def test_a_read_whose_pin_names_line_linuxcnc_would_cut_is_an_error(project):

@@ -90,7 +90,9 @@ LINES = {
 # the changer lines the sequences use by channel (FB_MachineConfig.Channels): ST field -> register-map signal
 MAP_CHANNELS = {"armAtForward": "ArmAtForward", "armAtReverse": "ArmAtReverse", "colletOpened": "ColletOpened",
                 "lengthSensor": "ToolLengthSensor", "brakeOff": "BrakeOff", "armForward": "ArmForward",
-                "colletOpen": "ColletOpen", "toolPresent": "ToolPresent"}
+                "colletOpen": "ColletOpen", "toolPresent": "ToolPresent",
+                **{f"userIn{n}": f"UserIn{n}" for n in range(4, 8)},       # the user procedures' I/O
+                **{f"userOut{n}": f"UserOut{n}" for n in range(4, 8)}}
 
 
 CHANNEL = Int(0, MAX_CHANNEL)
