@@ -40,6 +40,30 @@ def test_build_is_cached_by_content(tmp_path):
     assert result.returncode == 0 and "ABI 2" in result.stdout
 
 
+def test_the_runtime_objects_are_compiled_once_for_every_program(tmp_path, monkeypatch):
+    """A second program reuses the runtime's own objects (only the program is compiled): in PLC_RUNTIME_OBJECTS
+    when set, else in the build directory's objects/."""
+    monkeypatch.delenv("PLC_RUNTIME_OBJECTS", raising=False)
+    out = tmp_path / "build"
+    first = tmp_path / "first.c"
+    shutil.copy(h.BASIC, first)
+    runtime.build_runtime(first, out, sanitize=h.SANITIZE)
+    objects = {p.name: p.stat().st_mtime_ns for p in (out / "objects").iterdir()}
+    assert len(objects) == len(list(runtime.RUNTIME_DIR.glob("*.c")))
+    second = tmp_path / "second.c"
+    second.write_text(first.read_text() + "\n/* another program */\n")
+    binary = runtime.build_runtime(second, out, sanitize=h.SANITIZE)
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "objects").iterdir()} == objects
+    leftovers = [p.name for p in out.iterdir() if p.name != "objects" and "." in p.name]   # a temporary file
+    assert leftovers == []
+    result = subprocess.run([str(binary), "--version"], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 0 and "ABI 2" in result.stdout
+    shared = tmp_path / "shared"
+    monkeypatch.setenv("PLC_RUNTIME_OBJECTS", str(shared))
+    runtime.build_runtime(first, tmp_path / "other-build", sanitize=h.SANITIZE)
+    assert len(list(shared.iterdir())) == len(objects) and not (tmp_path / "other-build" / "objects").exists()
+
+
 def test_a_changed_included_header_rebuilds(tmp_path):
     (tmp_path / "values.h").write_text("#define FIXTURE_LAYOUT_HASH 1u\n")
     program = tmp_path / "program.c"

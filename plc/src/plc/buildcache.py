@@ -1,7 +1,8 @@
 """The build cache: parse results and object files, each stored under a hash of everything it comes from.
 
 An edit then redoes only what depends on it (issue 33): `plc test`, `plc build` and `plc run` of a project keep
-one cache in its build/plc-cache/ (git ignores build/; removing the directory is always safe).
+one cache in its build/plc-cache/ (git ignores build/; removing the directory is always safe), or in the
+directory PLC_CACHE_DIR names (one cache for many checkouts: the entries are keyed by content).
 
 - A parsed file (parser.parse) is keyed by its name, its text and the compiler's own sources; it stores the
   tree and the diagnostics the lexer and the parser reported, which a hit reports again.
@@ -193,6 +194,12 @@ class Cache:
             return tree
         self.store("parse", key, payload)
         return tree
+
+
+def project_cache(root: Path) -> Path:
+    """The cache directory of the project at `root`: PLC_CACHE_DIR when set, else its build/plc-cache/."""
+    shared = os.environ.get("PLC_CACHE_DIR")
+    return Path(shared) if shared else root / CACHE_DIR
 
 
 def use(root: Path | None) -> Cache | None:

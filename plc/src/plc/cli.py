@@ -41,7 +41,7 @@ def cmd_check(args) -> int:
 
 def use_project_cache(root: Path | None) -> None:
     """Parse results and objects from the project's build cache (build/plc-cache/, shared by plc test)."""
-    buildcache.use(root / buildcache.CACHE_DIR if root is not None else None)
+    buildcache.use(buildcache.project_cache(root) if root is not None else None)
 
 
 def cmd_build(args) -> int:

@@ -57,6 +57,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -189,21 +190,62 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
         return target
 
     out_dir.mkdir(parents=True, exist_ok=True)
+    # the runtime's own sources as objects reused by every program (PLC_RUNTIME_OBJECTS: one directory for many
+    # build directories, as the test suite sets it), compiled in parallel; the program compiled alone
+    shared = os.environ.get("PLC_RUNTIME_OBJECTS")
+    obj_dir = Path(shared) if shared else out_dir / "objects"
+    head = "\0".join([cc, *version, *cflags, *cppflags])
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        objects = list(pool.map(lambda src: _runtime_object(cc, cflags, cppflags, src, obj_dir, head), sources))
+    fd, program_o = tempfile.mkstemp(prefix=name + ".", suffix=".o", dir=out_dir)
+    os.close(fd)
     fd, tmp_name = tempfile.mkstemp(prefix=name + ".", dir=out_dir)
     os.close(fd)
-    command = [cc, *cflags, *cppflags, *map(str, sources), str(program_c), "-o", tmp_name, *libs]
+    try:
+        command = [cc, *cflags, *cppflags, "-c", str(program_c), "-o", program_o]
+        result = subprocess.run(command, capture_output=True, text=True)
+        if result.returncode == 0:
+            command = [cc, *cflags, *map(str, objects), program_o, "-o", tmp_name, *libs]
+            result = subprocess.run(command, capture_output=True, text=True)
+        if result.returncode != 0:
+            hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr else ""
+            # gcc and clang name the file of each error first: "FILE:LINE:COL: error: ..."
+            refused = any(line.startswith(f"{program_c}:") and ": error:" in line
+                          for line in result.stderr.splitlines())
+            raise RuntimeBuildError(f"building the runtime with {program_c} failed:\n"
+                                    f"{_trim(result.stderr)}{hint}", refused, result.stdout + result.stderr, command)
+        os.chmod(tmp_name, 0o755)
+        os.replace(tmp_name, target)
+    finally:
+        for leftover in (program_o, tmp_name):
+            if os.path.exists(leftover):
+                os.unlink(leftover)
+    return target
+
+
+def _runtime_object(cc: str, cflags: list[str], cppflags: list[str], source: Path, obj_dir: Path,
+                    head: str) -> Path:
+    """`source` (a runtime source, or an application's events source) compiled to an object in `obj_dir`, named
+    by a hash of the compiler, the flags, the source and every header it includes: reused when present."""
+    digest = hashlib.sha256(head.encode())
+    for path in _dependencies(cc, source, cppflags):
+        digest.update(str(path.name).encode() + b"\0")
+        digest.update(path.read_bytes())
+    obj = obj_dir / f"{source.stem}-{digest.hexdigest()[:20]}.o"
+    if obj.is_file():
+        return obj
+    obj_dir.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=obj.name + ".", suffix=".o", dir=obj_dir)
+    os.close(fd)
+    command = [cc, *cflags, *cppflags, "-c", str(source), "-o", tmp]
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
-        os.unlink(tmp_name)
+        os.unlink(tmp)
         hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr else ""
-        # gcc and clang name the file of each error first: "FILE:LINE:COL: error: ..."
-        refused = any(line.startswith(f"{program_c}:") and ": error:" in line
-                      for line in result.stderr.splitlines())
-        raise RuntimeBuildError(f"building the runtime with {program_c} failed:\n"
-                                f"{_trim(result.stderr)}{hint}", refused, result.stdout + result.stderr, command)
-    os.chmod(tmp_name, 0o755)
-    os.replace(tmp_name, target)
-    return target
+        raise RuntimeBuildError(f"building the runtime ({source.name}) failed:\n{_trim(result.stderr)}{hint}",
+                                False, result.stdout + result.stderr, command)
+    os.replace(tmp, obj)
+    return obj
 
 
 # -------------------------------------------------------------------------- config

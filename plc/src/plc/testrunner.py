@@ -246,7 +246,7 @@ def cmd_test(args) -> int:
     src = args.src if args.src is not None else ([str(root / "st_src")] if root else [])
     build_dir = Path(args.build_dir) if args.build_dir else (root or Path.cwd()) / "build" / "plc-test"
     # the project's build cache (parse results, objects), shared with plc build and plc run; else the build dir's
-    buildcache.use(root / buildcache.CACHE_DIR if root is not None else build_dir / "cache")
+    buildcache.use(buildcache.project_cache(root) if root is not None else build_dir / "cache")
     with paused_gc():
         if root is not None and args.src is None and refused_by_preflight(root, "plc test"):
             return 2        # the project is not ready (stale generated files): no test ran, so no test count
