@@ -236,3 +236,30 @@ def test_refused_connection_is_reported(capsys):
                                             (["abort", "8"], ["ABORT", "8"]), (["T0", "M06"], ["T0", "M06"])])
 def test_commands_are_read_like_gcode_words(words, expected):
     assert cli.tokens(words) == expected
+
+
+def test_status_shows_the_user_procedures_and_the_errmsg_of_one_that_stopped_the_program(capsys):
+    # issue 31: the running procedure with its step and source line, the last one's result, time and reason,
+    # and while the PLC's fault is -150 the ErrMsg of the procedure that raised it (the sequence set's text)
+    with FakePlc(ADDR) as fake:
+        fake.set_c("ProcBusy", True)
+        for name, value in (("ProcId", 3), ("ProcStep", 1), ("ProcLine", 2), ("ProcLastId", 0), ("ProcLastResult", 2),
+                            ("ProcLastReason", -201), ("ProcLastDuration", 150), ("ProcLastAgo", 42),
+                            ("ProcFailCount", 1), ("ProcFaultId", 0), ("ProcFaultText", 1), ("FaultReason", -150)):
+            fake.set_r(name, value)
+        status, out, err = run(fake, capsys, "status")
+    assert status == 0, out + err
+    assert "procedure 3 running, step 1, source line 2   failures since start 1" in out
+    assert "last procedure 0: 2 ERRORS (-201 SEQ_WAITIN_TIMEOUT), ran 15.0 s, ended 42 s ago" in out
+    assert "procedure 0 stopped the program: lubrication: no oil pressure within 15 s" in out
+    assert "PLC fault: -150 PROCEDURE_FAILED" in out
+
+
+def test_status_names_no_procedure_fault_while_the_fault_is_another(capsys):
+    with FakePlc(ADDR) as fake:
+        fake.set_r("ProcFaultId", 0)
+        fake.set_r("ProcLastId", -1)
+        status, out, err = run(fake, capsys, "status")
+    assert status == 0, out + err
+    assert "procedure: none running   failures since start 0" in out
+    assert "last procedure" not in out and "stopped the program" not in out

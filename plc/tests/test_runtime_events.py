@@ -165,3 +165,23 @@ def test_a_force_during_a_prepare_turn_drops_the_position_and_nothing_claims_the
         finally:
             session.stop()
             client.close()
+
+
+def test_the_log_tells_a_user_procedure_start_and_end(app, tmp_path):
+    # issue 31: the program-stopped coil (what LinuxCNC's halui feeds through mb2hal) runs the shipped mode-3
+    # procedure, id 3 (OUT 6 1): the log names its start and its end with the result
+    info = app[2]
+    coil = {s.name: s.address for s in info.rmap.signals if s.table == "coil"}
+    reg = {s.name: s.address for s in info.rmap.signals if s.table == "holding_register"}
+    with app_runtime(app, tmp_path) as rt:
+        rt.wait_for(r"changer: tool 0 in the spindle, state AtcIdle")
+        client = ModbusClient("127.0.0.1", rt.port, timeout=5 * h.SLOW)
+        client.connect()
+        try:
+            client.write_coil(coil["ProgramStopped"], True)
+            rt.wait_for(r"procedure 3 started")
+            rt.wait_for(r"procedure 3 ended: DONE")
+            assert client.read_holding(reg["ProcLastId"], 1) == [3]
+            assert client.read_coils(coil["UserOut6"], 1) == [True], "the alarm light is on"
+        finally:
+            client.close()

@@ -73,6 +73,12 @@ class Timeouts:
     link: float = 10.0        # start-up: until the PLC reports the host link up
 
 
+# the user procedures' status registers (modbus_map/map.toml), read together for `status`
+PROCEDURE_STATUS = ("ProcBusy", "ProcId", "ProcStep", "ProcLine", "ProcLastId", "ProcLastResult", "ProcLastReason",
+                    "ProcLastDuration", "ProcLastAgo", "ProcFailCount", "ProcFaultId", "ProcFaultText")
+PROCEDURE_FAILED = -150   # the reason a procedure with can_stop_gcode latches (modbus_map/reason_codes.toml)
+
+
 @dataclass
 class Session:
     rmap: RegisterMap
@@ -576,6 +582,29 @@ class Session:
         name = self._names.get(signal, {}).get(int(value))
         return f"{value} {name}" if name else f"{value}"
 
+    def procedure_lines(self, reasons: dict[int, str], fault: int) -> list[str]:
+        """The user procedures (docs/procedures.md): the running one with its step and line, the last one's result,
+        time and reason, the failure count, and while the PLC's fault is PROCEDURE_FAILED (-150) the ErrMsg of the
+        procedure that raised it. [] when the map has no procedures."""
+        if not all(self.tags.has(n) for n in PROCEDURE_STATUS):
+            return []
+        p = self.tags.read(*PROCEDURE_STATUS)
+        texts = getattr(self.mailbox, "texts", {})
+        running = (f"procedure {p['ProcId']} running, step {p['ProcStep']}, source line {p['ProcLine']}"
+                   if p["ProcBusy"] else "procedure: none running")
+        lines = [f"{running}   failures since start {p['ProcFailCount']}"]
+        last = int(p["ProcLastId"])
+        if last >= 0 and int(p["ProcLastResult"]):
+            reason = int(p["ProcLastReason"])
+            why = f" ({reason} {reasons.get(reason, '?')})" if reason else ""
+            lines.append(f"last procedure {last}: {self._named('ProcLastResult', p)}{why}, ran "
+                         f"{int(p['ProcLastDuration']) / 10:.1f} s, ended {p['ProcLastAgo']} s ago")
+        fault_id = int(p["ProcFaultId"])
+        if fault == PROCEDURE_FAILED and fault_id >= 0:
+            text = texts.get(int(p["ProcFaultText"]), f"(message {p['ProcFaultText']})")
+            lines.append(f"procedure {fault_id} stopped the program: {text}")
+        return lines
+
     def status(self) -> list[str]:
         s = self.poll()
         names = {r.code: r.name for r in self.rmap.reasons}
@@ -592,6 +621,7 @@ class Session:
             kind = int(seq.get("SeqKind", 0))
             lines.append(f"sequence {self._named('SeqKind', seq)}" + (
                 f", step {seq.get('SeqStep')}, source line {seq.get('SeqLine')}" if kind else " (none running)"))
+        lines += self.procedure_lines(names, int(s.get("FaultReason", 0)))
         recovery = int(s.get("Recovery", 0))
         if recovery:
             todo = [t for bit, t in ((RECOVERY_HOME, "home the changer"),

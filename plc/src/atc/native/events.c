@@ -19,6 +19,7 @@
  *   changer IDLE -> HOMING; carousel homed at pocket 1
  *   host link lost / restored; host left (its last heartbeat 65535: a clean exit)
  *   sequence PUT started / ended
+ *   procedure 0 started / ended: DONE / ended: ERRORS (-201 SEQ_WAITIN_TIMEOUT) / failed... (user procedures)
  *
  * A signal the description lacks is simply not watched (an older map, or
  * OpenPLC's names): the runtime knows roles, the map says where they live.
@@ -43,7 +44,9 @@ enum role {
     R_TOOL_IN_SPINDLE, R_CHANGER_STATE, R_FAULT_REASON, R_TOOL_CHANGE, R_TOOL_CHANGED, R_TOOL_PREPARE,
     R_TOOL_PREPARED, R_PREP_NUMBER, R_PREP_POCKET, R_TOOL_NUMBER, R_EMC_ABORT, R_EMC_REASON, R_ESTOP_OK,
     R_HOST_LINK_OK, R_CAROUSEL_HOMED, R_CURRENT_POCKET, R_SEQ_KIND, R_IOV_STATE, R_SIMULATED_PLANT,
-    R_SIM_ESTOP, R_RESTART_FIT, R_POCKET_COUNT, R_POCKET_TOOL1, R_UNCERTAIN_TOOL, R_HOST_HEARTBEAT, R_ESTOP_CLOSED,
+    R_SIM_ESTOP, R_RESTART_FIT, R_POCKET_COUNT, R_POCKET_TOOL1, R_UNCERTAIN_TOOL, R_HOST_HEARTBEAT,
+    R_PROC_BUSY, R_PROC_ID, R_PROC_LAST_ID, R_PROC_LAST_RESULT, R_PROC_LAST_REASON, R_PROC_FAIL_COUNT,
+    R_ESTOP_CLOSED,
     R_COUNT
 };
 
@@ -52,6 +55,7 @@ static const char *const role_signal[R_COUNT] = {
     "ToolPrepared", "ToolPrepNumber", "ToolPrepPocket", "ToolNumber", "EmcAbort", "EmcReason", "EStopOk",
     "HostLinkOk", "CarouselHomed", "CurrentPocket", "SeqKind", "IovState", "SimulatedPlant", "SimEStop",
     "RestartFit", "PocketCount", "PocketTool1", "UncertainTool", "HostHeartbeat",
+    "ProcBusy", "ProcId", "ProcLastId", "ProcLastResult", "ProcLastReason", "ProcFailCount",
     NULL,   /* derived: the E-stop chain as the application sees it */
 };
 
@@ -512,6 +516,26 @@ void events_after_scan(events_t *ev, runtime_t *rt, uint64_t now)
                     state_label(ev, R_SEQ_KIND, ev->prev[R_SEQ_KIND], a, sizeof a));
         if (cur[R_SEQ_KIND])
             EV_LOG(LOG_INFO, "sequence %s started", state_label(ev, R_SEQ_KIND, cur[R_SEQ_KIND], b, sizeof b));
+    }
+    /* the user procedures (docs/procedures.md): start, failure (also one passed over), end with its result */
+    if (ROSE(R_PROC_BUSY))
+        log_msg(log, LOG_INFO, "procedure %" PRId64 " started", cur[R_PROC_ID]);
+    if (CHANGED(R_PROC_FAIL_COUNT) && cur[R_PROC_FAIL_COUNT] > ev->prev[R_PROC_FAIL_COUNT]) {
+        const reason_t *rs = reason_of(ev, cur[R_PROC_LAST_REASON]);
+        int64_t id = cur[R_PROC_BUSY] ? cur[R_PROC_ID] : cur[R_PROC_LAST_ID];
+        if (cur[R_PROC_BUSY])       /* passed over (stop_on_error false): the reason is not published yet */
+            log_msg(log, LOG_WARN, "procedure %" PRId64 " failed a step and goes on", id);
+        else
+            log_msg(log, LOG_WARN, "procedure %" PRId64 " failed: reason %" PRId64 " %s", id,
+                    cur[R_PROC_LAST_REASON], rs ? rs->name : "?");
+    }
+    if (FELL(R_PROC_BUSY)) {
+        const reason_t *rs = reason_of(ev, cur[R_PROC_LAST_REASON]);
+        char why[64] = "";
+        if (cur[R_PROC_LAST_REASON])
+            snprintf(why, sizeof why, " (%" PRId64 " %s)", cur[R_PROC_LAST_REASON], rs ? rs->name : "?");
+        log_msg(log, cur[R_PROC_LAST_REASON] ? LOG_WARN : LOG_INFO, "procedure %" PRId64 " ended: %s%s",
+                cur[R_PROC_LAST_ID], state_label(ev, R_PROC_LAST_RESULT, cur[R_PROC_LAST_RESULT], a, sizeof a), why);
     }
     memcpy(ev->prev, cur, sizeof cur);
 
