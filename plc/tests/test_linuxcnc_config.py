@@ -1,0 +1,63 @@
+"""The shipped LinuxCNC configuration (configs/linuxcnc/) agrees with the project's own data: the tool data comes
+from the PLC (docs/tools.md), the remap's pins fit motion's, the operator texts of the tool table's reasons are
+those of modbus_map/reason_codes.toml. Text checks; LinuxCNC itself runs in scripts/e2e-linuxcnc."""
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+CONFIG = REPO / "configs" / "linuxcnc"
+
+
+def ini_values(section: str, key: str) -> list[str]:
+    values, current = [], None
+    for line in (CONFIG / "atc-sim.ini").read_text().splitlines():
+        m = re.fullmatch(r"\s*\[(\w+)\]\s*", line)
+        if m:
+            current = m.group(1)
+        elif current == section and re.match(rf"\s*{key}\s*=", line):
+            values.append(line.split("=", 1)[1].strip())
+    return values
+
+
+def test_the_shipped_machine_takes_its_tools_from_the_plc_and_documents_the_table_file():
+    assert ini_values("EMCIO", "DB_PROGRAM") == ["bin/atc-tooldb --port 5020 --offsets atc-tooldb.tbl"]
+    assert ini_values("EMCIO", "TOOL_TABLE") == []              # LinuxCNC would ignore it beside DB_PROGRAM
+    assert re.search(r"(?m)^# TOOL_TABLE = atc-sim\.tbl$", (CONFIG / "atc-sim.ini").read_text())
+    assert (CONFIG / "bin" / "atc-tooldb").stat().st_mode & 0o111
+    port = re.search(r"(?m)^TCP_PORT\s*=\s*(\d+)", (CONFIG / "atc_mb2hal.ini").read_text()).group(1)
+    assert f"--port {port} " in ini_values("EMCIO", "DB_PROGRAM")[0]     # one PLC for mb2hal and atc-tooldb
+    offsets = (CONFIG / "atc-tooldb.tbl").read_text().splitlines()
+    table = (CONFIG / "atc-sim.tbl").read_text().splitlines()
+    assert [line.split()[0] for line in offsets] == [line.split()[0] for line in table]
+
+
+def test_the_remap_reads_the_prepared_tool_from_a_pin_motion_has():
+    hal = (CONFIG / "atc-remap.hal").read_text()
+    m = re.search(r"(?m)^net atc-prepared-tool-float => motion\.analog-in-(\d+)$", hal)
+    assert m, "atc-remap.hal does not put the PLC's PreparedTool on a motion.analog-in pin"
+    pin = int(m.group(1))
+    assert pin < int(ini_values("EMCMOT", "NUM_AIO")[0])
+    assert len(re.findall(rf"=> motion\.analog-in-{pin:02d}\b", hal)) == 1
+    ngc = (CONFIG / "nc_subs" / "atc_m6.ngc").read_text()
+    assert f"M66 E{pin} L0" in ngc and "M61 Q#<loaded>" in ngc
+
+
+def test_the_worn_out_refusals_show_the_texts_of_the_reason_table():
+    with open(REPO / "modbus_map" / "reason_codes.toml", "rb") as f:
+        texts = {r["code"]: r["text"] for r in tomllib.load(f)["reason"]}
+    ngc = (CONFIG / "nc_subs" / "atc_fault.ngc").read_text()
+    assert f"(debug, toolchanger fault 109: {texts[109]})" in ngc
+    assert f"(abort, toolchanger error -109: {texts[-109]})" in ngc
+
+
+def test_the_spindle_guard_watches_the_plcs_inhibit():
+    hal = (CONFIG / "atc-sim.hal").read_text()
+    for line in ("net atc-spindle-inhibit spindle.0.inhibit", "loadusr -W atc-spindle-guard",
+                 "net atc-spindle-inhibit => atc-spindle-guard.inhibit",
+                 "net atc-spindle-speed-cmd spindle.0.speed-cmd-rps => atc-spindle-guard.speed-cmd",
+                 "net atc-tool-in-spindle => atc-spindle-guard.tool"):
+        assert re.search(rf"(?m)^{re.escape(line)}$", hal), line
+    assert (CONFIG / "bin" / "atc-spindle-guard").stat().st_mode & 0o111
