@@ -228,6 +228,25 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
         wait_page(b, lambda b: not b.find_elements(By.CSS_SELECTOR, ".pocket.worn"), 10, "T5 reset: no worn mark")
         assert "tools reset row 5 T5 (page) -> done" in (plant["tmp"] / "audit.log").read_text()
 
+        # --- the user procedures (issue 31): listed from the sequence set, switched with the token, and the
+        # program-stopped line runs the mode-3 alarm, whose result and time the page shows
+        wait_page(b, lambda b: len(b.find_elements(By.CSS_SELECTOR, "#procs tbody tr")) == 2, 10, "two procedures")
+        lube = "#procs tr[data-slot='1']"
+        wait_page(b, lambda b: b.find_element(By.CSS_SELECTOR, lube).text.startswith("0 lube every 240000 ms enabled"),
+                  10, "the lube row")
+        b.find_element(By.CSS_SELECTOR, lube + " button.proc-switch").click()
+        wait_page(b, lambda b: "procedure 0 (lube) disabled" in text(b, "message"), 30, "the switch answered")
+        wait_page(b, lambda b: "disabled (page)" in b.find_element(By.CSS_SELECTOR, lube).text, 10, "lube disabled")
+        b.find_element(By.CSS_SELECTOR, lube + " button.proc-switch").click()
+        wait_page(b, lambda b: "enabled" in b.find_element(By.CSS_SELECTOR, lube).text.split("ms ")[-1], 10,
+                  "lube enabled again")
+        with ModbusClient("127.0.0.1", plant["rt"].port, timeout=5 * h.SLOW) as line:
+            line.write_coil(rmap.signal("ProgramStopped").address, True)
+            wait_page(b, lambda b: text(b, "proc-last").startswith("last: procedure 3 DONE (1), ran "), 30,
+                      "the alarm's result on the page")
+            assert re.search(r"ended \d+ s ago; failures since start 0", text(b, "proc-last")), text(b, "proc-last")
+            line.write_coil(rmap.signal("ProgramStopped").address, False)
+
         # --- a page without the token: refused, and nothing reaches the PLC
         b.execute_script("sessionStorage.clear()")
         b.get(url + "/")

@@ -189,3 +189,32 @@ def test_the_page_knows_the_inputs_the_simulation_leaves_alone_its_fault_lines_a
     assert hub.plc_time({"ScanCount": 5}) == {}, "no diagnostic block (OpenPLC): no PLC time"
     hub.diag = {"scan_count": 65530, "base_tick_us": 4000}
     assert hub.plc_time({"ScanCount": 2}) == {"plc_scan": 65538, "plc_s": 262.152}, "ScanCount wrapped since"
+
+
+def test_the_page_lists_the_shipped_procedures_and_switches_them_through_procdisabled():
+    # issue 31: the page's procedures come from the sequence set; its switch writes the run-time mask
+    # ProcDisabled (bit slot-1) through the "procedure" command, and refuses what it cannot do
+    from host_fake_plc import Addr, FakePlc
+    from atc.hmi import server
+    procs, texts = server.procedures_of(REPO)
+    assert [(p["slot"], p["id"], p["name"], p["when"], p["enabled"]) for p in procs] == [
+        (1, 0, "lube", "every 240000 ms", True), (2, 3, "alarm light", "on error or stop", True)]
+    assert "lubrication: no oil pressure within 15 s" in texts.values()
+    info = mapinfo.load(REPO / "modbus_map" / "map.toml")
+    addr = Addr(coil={s.name: s.address for s in info.rmap.signals if s.table == "coil"},
+                reg={s.name: s.address for s in info.rmap.signals if s.table == "holding_register"})
+    with FakePlc(addr) as fake:
+        hub = server.Hub(server.Options(plc_port=fake.port), info, "token", 6, procedures=procs)
+        answer = server.run_command(hub, "procedure", {"slot": 2, "enabled": False})
+        assert answer == {"ok": True, "text": "procedure 3 (alarm light) disabled"}
+        assert fake.r("ProcDisabled") == 2
+        assert server.run_command(hub, "procedure", {"slot": 1, "enabled": False})["ok"]
+        assert fake.r("ProcDisabled") == 3
+        assert server.run_command(hub, "procedure", {"slot": 2, "enabled": True})["ok"]
+        assert fake.r("ProcDisabled") == 1
+        assert "no procedure 5" in server.run_command(hub, "procedure", {"slot": 5, "enabled": True})["error"]
+        assert "needs" in server.run_command(hub, "procedure", {"slot": "1", "enabled": True})["error"]
+        hub.procedures = [dict(procs[0], enabled=False)]
+        refused = server.run_command(hub, "procedure", {"slot": 1, "enabled": True})
+        assert not refused["ok"] and "disabled in the sequence set" in refused["error"]
+        assert fake.r("ProcDisabled") == 1, "a refused switch writes nothing"

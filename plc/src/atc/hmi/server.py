@@ -6,10 +6,11 @@ toolchanger part needs only the map, so it works against an OpenPLC runtime serv
 diagnostic block and the watch/force panel need our runtime (its monitoring channel) and are left out
 quietly when absent.
 
-Commands (home, +/-1 pocket, go to pocket, clear fault, confirm the tool) are requests through the map's host
-signals: the PLC decides, and refuses what its interlocks and its state do not allow (the answer says why).  Go
-to pocket is the PLC's go-to (GotoRequest/GotoPocket, answered in GotoAnswer): the carousel turns to that pocket
-whatever the spindle holds; +/-1 is a go-to of the neighbour of the pocket at the change position.
+Commands (home, +/-1 pocket, go to pocket, clear fault, confirm the tool, enable or disable a user procedure)
+are requests through the map's host signals: the PLC decides, and refuses what its interlocks and its state do
+not allow (the answer says why).  Go to pocket is the PLC's go-to (GotoRequest/GotoPocket, answered in
+GotoAnswer): the carousel turns to that pocket whatever the spindle holds; +/-1 is a go-to of the neighbour of the
+pocket at the change position.
 Every command, write and force needs the token (the monitor's, var/monitor.token); without it the page is
 read-only.  The alarm history is a JSON-lines file (default var/alarms.jsonl) and survives restarts.
 
@@ -40,6 +41,9 @@ from ..host.session import HostError, Session, Timeouts
 from ..host.tags import MapError, Tags
 from ..map.cli import default_map
 from ..runsetup import SIM_FLAG_SIGNAL
+from ..seq.assemble import check_set
+from ..seq.diagnostics import Diagnostics as SeqDiagnostics
+from ..seq.stgen import _message_numbers
 from ..tools import ANSWERS, EDIT_RESET, Table, ToolsError
 from . import mapinfo
 
@@ -98,6 +102,8 @@ class Hub:
     plc_error: str = ""
     changed_at: float = 0.0                          # monotonic time of the poll that saw the last change
     polled_at: float = 0.0                           # wall time when the last poll's answers were in
+    procedures: list = field(default_factory=list)   # the user procedures of the sequence set (procedures_of)
+    texts: dict = field(default_factory=dict)        # their ErrMsg texts by F_SequenceMessage number
     _beats: dict = field(default_factory=dict)
     _buckets: dict = field(default_factory=dict)
 
@@ -203,6 +209,27 @@ def fault_lines(info: mapinfo.MapInfo) -> list[str]:
     module."""
     return [s.name for s in info.rmap.signals if s.type == "BOOL"
             and s.name.endswith(("Fault", "Faulted", "Lost")) and not s.name.startswith("Clear")]
+
+
+MODES = ("every {interval} ms", "at program start", "after a successful end", "on error or stop")
+
+
+def procedures_of(root: Path) -> tuple[list[dict], dict[int, str]]:
+    """The user procedures of the project's sequence set (docs/procedures.md) as the page lists them, and their
+    ErrMsg texts by number; nothing when the set is missing or has errors (`plc seq check` says why)."""
+    diags = SeqDiagnostics()
+    try:
+        assembly = check_set(root / project.sequence_index(root), diags)
+    except OSError:
+        return [], {}
+    if assembly is None:
+        return [], {}
+    numbers = _message_numbers(assembly)
+    procs = [{"slot": p.slot, "id": p.id, "name": p.name, "mode": p.mode, "enabled": p.enabled,
+              "when": MODES[p.mode].format(interval=p.interval_ms), "stop_on_error": p.stop_on_error,
+              "can_stop_gcode": p.can_stop_gcode} for p, _ in assembly.procedures]
+    texts = {numbers[p.err_msg]: p.err_msg for p, _ in assembly.procedures if p.err_msg}
+    return procs, texts
 
 
 def _pockets(info: mapinfo.MapInfo, given: int | None) -> int:
@@ -323,10 +350,13 @@ def run_command(hub: Hub, cmd: str, arg) -> dict:
     client.connect()
     session = Session(rmap, client, say=lambda _t: None, timeouts=Timeouts(request=60.0))
     try:
-        if cmd not in ("home", "clear", "goto", "step", "confirm", "tool-reset"):
-            return {"ok": False, "error": f"unknown command '{cmd}' (home, step, goto, clear, confirm, tool-reset)"}
+        if cmd not in ("home", "clear", "goto", "step", "confirm", "tool-reset", "procedure"):
+            return {"ok": False, "error": f"unknown command '{cmd}' (home, step, goto, clear, confirm, tool-reset, "
+                                          "procedure)"}
         if cmd == "tool-reset":
             return tool_reset(hub, session.tags, arg)
+        if cmd == "procedure":
+            return procedure_switch(hub, session.tags, arg)
         if cmd == "step" and arg not in (1, -1):
             return {"ok": False, "error": "step is +1 or -1"}
         if cmd in ("goto", "confirm") and (not isinstance(arg, int) or isinstance(arg, bool)):
@@ -378,6 +408,30 @@ def tool_reset(hub: Hub, tags, tool) -> dict:
     if answer != 1:
         return {"ok": False, "error": f"T{tool}: {ANSWERS.get(answer, f'answer {answer}')}"}
     return {"ok": True, "text": f"T{tool}: time used reset to 0"}
+
+
+def procedure_switch(hub: Hub, tags, arg) -> dict:
+    """Enable or disable a user procedure at run time: its bit in ProcDisabled (0 = as compiled). A procedure the
+    sequence set compiles disabled cannot be enabled here; one that runs when disabled runs to its end."""
+    slot = arg.get("slot") if isinstance(arg, dict) else None
+    enable = arg.get("enabled") if isinstance(arg, dict) else None
+    if not isinstance(slot, int) or isinstance(slot, bool) or not 1 <= slot <= 16 or not isinstance(enable, bool):
+        return {"ok": False, "error": 'procedure needs {"slot": 1..16, "enabled": true|false}'}
+    if not tags.has("ProcDisabled"):
+        return {"ok": False, "error": "this PLC's register map has no user procedures"}
+    proc = next((p for p in hub.procedures if p["slot"] == slot), None)
+    if proc is None:
+        return {"ok": False, "error": f"the sequence set has no procedure {slot}"}
+    if enable and not proc["enabled"]:
+        return {"ok": False, "error": f"procedure {proc['id']} ({proc['name']}) is disabled in the sequence set "
+                                      "(enabled = false): the page cannot enable it"}
+    bit = 1 << (slot - 1)
+    mask = int(tags.get("ProcDisabled"))
+    mask = mask & ~bit if enable else mask | bit
+    tags.write(ProcDisabled=mask)
+    if int(tags.get("ProcDisabled")) != mask:
+        return {"ok": False, "error": "the PLC did not take the new ProcDisabled"}
+    return {"ok": True, "text": f"procedure {proc['id']} ({proc['name']}) {'enabled' if enable else 'disabled'}"}
 
 
 def goto(session: Session, hub: Hub, pocket: int) -> dict:
@@ -455,7 +509,8 @@ def make_app(hub: Hub):
         return web.json_response({"signals": sigs, "pockets": hub.pockets, "token_required": True,
                                   "not_simulated": not_simulated(hub.info), "fault_lines": fault_lines(hub.info),
                                   "writes_possible": bool(hub.token), "monitor": hub.opts.monitor_socket is not None,
-                                  "reasons": {str(k): v for k, v in hub.info.reasons.items()}})
+                                  "reasons": {str(k): v for k, v in hub.info.reasons.items()},
+                                  "procedures": hub.procedures, "texts": {str(k): v for k, v in hub.texts.items()}})
 
     async def alarms(_request):
         return web.json_response({"alarms": hub.alarms})
@@ -470,8 +525,8 @@ def make_app(hub: Hub):
             return bad
         data = await body_of(request)
         if data is None or not isinstance(data.get("cmd"), str):
-            return refuse(400, 'expected JSON {"cmd": "home"|"step"|"goto"|"clear"|"confirm"|"tool-reset", '
-                               '"arg": ...}')
+            return refuse(400, 'expected JSON {"cmd": "home"|"step"|"goto"|"clear"|"confirm"|"tool-reset"|'
+                               '"procedure", "arg": ...}')
         if command_lock.locked():
             return refuse(409, "another command is running")
         async with command_lock:
@@ -629,6 +684,7 @@ def main(argv: list[str]) -> int:
                    map_path=info.rmap.path, monitor_socket=None if args.no_monitor else args.monitor,
                    token_file=args.token_file, alarms=args.alarms, poll_ms=args.poll_ms, pockets=args.pockets)
     hub = Hub(opts, info, token, _pockets(info, args.pockets))
+    hub.procedures, hub.texts = procedures_of(info.rmap.root)
     hub.load_alarms()
     app = make_app(hub)
 
