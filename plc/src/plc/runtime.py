@@ -16,9 +16,15 @@ Configuration file (every key optional; paths relative to the file's directory):
     max_clients = 32
     frame_timeout_ms = 2000         # a request begun must be complete (and responses read) within this
     read_only = false               # true: every write function code answered with exception 01
-    allow = ["127.0.0.1", "192.168.1.0/24"]   # absent or empty: any client
-    writable_coils = ["400-799"]              # [] = none
+    allow = ["127.0.0.1", "192.168.1.0/24"]   # role engineer; no allow and no [[modbus.client]]: any client
+    writable_coils = ["400-799"]              # what an engineer may write; [] = none
     writable_registers = ["512-8191"]
+    host_coils = ["400-407"]                  # of those, what a host may write (default: the application's
+    host_registers = ["512-534"]              # host-writable ranges, else every writable one)
+
+    [[modbus.client]]                         # a client (or network) with a role: read, host or engineer
+    address = "192.168.1.20"                  # the longest prefix holding a client's address decides its role
+    role = "host"
 
     [io]
     layer = "sim"                   # "sim", "none" or "modbus"
@@ -257,9 +263,11 @@ class RunConfig:
     max_clients: int = 32
     frame_timeout_ms: int = 2000
     read_only: bool = False
-    allow: list[str] = dataclasses.field(default_factory=list)
+    allow: list[str] = dataclasses.field(default_factory=list)      # "ADDR/BITS" (engineer) or "ADDR/BITS=ROLE"
     writable_coils: list[str] | None = None          # None: the runtime's default
     writable_registers: list[str] | None = None
+    host_coils: list[str] | None = None              # None: the application's host ranges, else the writable ones
+    host_registers: list[str] | None = None
     io: str = "sim"                                  # the default: outputs loop back to inputs
     io_chosen: bool = False                          # the layer was asked for (--io, [io] layer), not the default
     io_devices: list[str] = dataclasses.field(default_factory=list)   # --io-device specs ([[io.device]])
@@ -353,7 +361,10 @@ RUN_CONFIG = {
         Field("read_only", Bool(), "every write function code answered with exception 01"),
         Field("allow", Check(_allow_list), "client addresses or networks (empty: any client)"),
         Field("writable_coils", _ranges(COILS), "coils a client may write"),
-        Field("writable_registers", _ranges(HOLDING_REGISTERS), "holding registers a client may write"))),
+        Field("writable_registers", _ranges(HOLDING_REGISTERS), "holding registers a client may write"),
+        Field("host_coils", _ranges(COILS), "of the writable coils, those a client of role host may write"),
+        Field("host_registers", _ranges(HOLDING_REGISTERS), "of the writable registers, those a host may write"),
+        Field("client", Check(lambda v: v), "[[modbus.client]]: a client address with its role"))),
     "io": Table((
         Field("layer", OneOf(IO_LAYERS), "the I/O layer"),
         Field("device", Check(lambda v: v), "[[io.device]]: the remote I/O of layer modbus (io_config)"),
@@ -377,7 +388,40 @@ RUN_CONFIG = {
 _FIELD_OF = {("io", "layer"): "io", ("retain", "file"): "retain_file", ("retain", "interval_ms"): "retain_interval_ms",
              ("retain", "registers"): "retain_registers", ("monitor", "enabled"): "monitor",
              ("monitor", "socket"): "monitor_socket"}
-_NOT_FIELDS = {("io", "device")}
+_NOT_FIELDS = {("io", "device"), ("modbus", "client")}
+
+ROLES = ("read", "host", "engineer")
+MAX_ALLOW = 32              # RT_MAX_ALLOW of the runtime: allow entries and [[modbus.client]] tables together
+CLIENT = Table((
+    Field("address", Check(_network), "an IPv4 address or ADDR/BITS", required=True),
+    Field("role", OneOf(ROLES), "read, host or engineer", required=True)))
+
+
+def check_clients(doc: tomlconf.Document, entries: Any, allow: list[str]) -> list[str]:
+    """The `[[modbus.client]]` tables of a run configuration as allowlist entries "ADDR/BITS=ROLE", after the
+    engineers of `allow`; every problem into doc (one network given two roles: at the second one)."""
+    base = ("modbus", "client")
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        doc.error(base, "modbus.client: write each client as a [[modbus.client]] table with address and role")
+        return []
+    roles = {a: ("engineer", "[modbus] allow") for a in allow}
+    out = []
+    for n, entry in enumerate(entries):
+        where = f"[[modbus.client]] {n + 1}"
+        checked = CLIENT.check(doc, base + (n,), entry, where + ":")
+        if not checked.ok:
+            continue
+        net, role = checked["address"], checked["role"]
+        if net in roles and roles[net][0] != role:
+            doc.error(base + (n, "address"), f"{where}: {net} has the role {roles[net][0]} already "
+                      f"({roles[net][1]}): one role per address")
+            continue
+        roles[net] = (role, where)
+        out.append(f"{net}={role}")
+    if len(allow) + len(out) > MAX_ALLOW:
+        doc.error(base, f"[modbus] allow and [[modbus.client]]: at most {MAX_ALLOW} entries together, "
+                  f"{len(allow) + len(out)} given")
+    return out
 
 
 def load_config(path: Path) -> RunConfig:
@@ -398,6 +442,9 @@ def load_config(path: Path) -> RunConfig:
             if isinstance(value, Path) and not value.is_absolute():
                 value = Path(os.path.normpath(path.parent / value))
             setattr(cfg, _FIELD_OF.get((section, key), key), value)
+    modbus = doc.data.get("modbus") if isinstance(doc.data.get("modbus"), dict) else {}
+    if "client" in modbus:
+        cfg.allow = cfg.allow + check_clients(doc, modbus["client"], cfg.allow)
     io = doc.data.get("io") if isinstance(doc.data.get("io"), dict) else {}
     cfg.io_chosen = "layer" in io
     if "device" in io:
@@ -439,6 +486,10 @@ def apply_application(cfg: RunConfig, setup: RunSetup, where: object) -> None:
         cfg.writable_coils = setup.writable_coils
     if cfg.writable_registers is None:
         cfg.writable_registers = setup.writable_registers
+    if cfg.host_coils is None:
+        cfg.host_coils = setup.writable_coils         # a host writes the application's command signals
+    if cfg.host_registers is None:
+        cfg.host_registers = setup.writable_registers
     if not cfg.retain_registers:
         cfg.retain_registers = list(setup.retain_registers)
     wrong = stop_level_problems(cfg, setup.stop_levels) if cfg.io == "modbus" else []
@@ -520,6 +571,10 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
         argv += ["--writable-coils", ",".join(cfg.writable_coils) or "none"]
     if cfg.writable_registers is not None:
         argv += ["--writable-registers", ",".join(cfg.writable_registers) or "none"]
+    if cfg.host_coils is not None:
+        argv += ["--host-coils", ",".join(cfg.host_coils) or "none"]
+    if cfg.host_registers is not None:
+        argv += ["--host-registers", ",".join(cfg.host_registers) or "none"]
     if cfg.retain_registers:
         argv += ["--retain-registers", ",".join(cfg.retain_registers)]
     if cfg.realtime:

@@ -365,7 +365,7 @@ DIAG = {  # offset, words
     "wake_mean_us": (28, 2), "wake_p99_us": (30, 2), "overruns": (32, 2), "clients": (34, 1),
     "requests": (36, 2), "exceptions": (38, 2), "refused": (40, 2), "retain_saves": (42, 2),
     "scan_p50_us": (44, 2), "wake_p50_us": (46, 2), "uptime_s": (48, 2), "skipped": (50, 2),
-    "dropped": (52, 2),
+    "dropped": (52, 2), "writes": (56, 2), "writes_refused": (58, 2),
 }
 STATE_RUNNING, STATE_FAULTED = 1, 2
 FLAG_RETAIN_RESTORED, FLAG_RETAIN_REJECTED = 0x2, 0x4

@@ -24,6 +24,7 @@ DIAG = {
     "wake_p99_us": (30, 2), "overruns": (32, 2), "clients": (34, 1), "requests": (36, 2), "exceptions": (38, 2),
     "refused": (40, 2), "retain_saves": (42, 2), "scan_p50_us": (44, 2), "wake_p50_us": (46, 2),
     "uptime_s": (48, 2), "skipped": (50, 2), "dropped": (52, 2), "app_fault": (54, 1),
+    "writes": (56, 2), "writes_refused": (58, 2),
 }
 SIGNED = {"app_fault"}
 # the I/O device block (--io modbus): 8 words per remote I/O device in configuration order, its state first
@@ -83,7 +84,7 @@ def render(d: dict[str, int]) -> list[str]:
         f"wake-up     p50 {d['wake_p50_us']} us, p99 {d['wake_p99_us']}, max {d['wake_max_us']}; overruns "
         f"{d['overruns']}, skipped {d['skipped']}",
         f"modbus      {d['clients']} client(s), {d['requests']} requests, {d['exceptions']} exceptions, "
-        f"{d['refused']} refused, {d['dropped']} dropped",
+        f"{d['refused']} refused, {d['dropped']} dropped; writes {d['writes']} served, {d['writes_refused']} refused",
         f"retain      {d['retain_saves']} saves",
         f"flags       {', '.join(flags) if flags else 'none'}",
     ]

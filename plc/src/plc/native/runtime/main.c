@@ -53,14 +53,23 @@ static void usage(FILE *f)
 "  --retain FILE            file that keeps RETAIN data across restarts (default: none)\n"
 "  --retain-interval MS     minimum time between two retain saves (default %d)\n"
 "  --retain-registers LIST  holding registers saved with RETAIN data, e.g. 1024-1039\n"
-"  --allow ADDR[/BITS]      accept clients only from these addresses (repeatable)\n"
+"  --allow ADDR[/BITS][=ROLE]  accept clients only from these addresses (repeatable);\n"
+"                           ROLE is what they may write: read (nothing: exception 01),\n"
+"                           host (the host ranges below) or engineer (every writable\n"
+"                           coil and register; the default).  The longest prefix that\n"
+"                           holds the client's address decides; no --allow: any\n"
+"                           client, engineer\n"
 "  --max-clients N          concurrent client limit (default %d)\n"
 "  --frame-timeout MS       drop a client whose request is still incomplete, or whose\n"
 "                           responses stay unread, after MS (default %d)\n"
 "  --read-only              answer every write function code with exception 01\n"
-"  --writable-coils LIST    coils the host may write (default " DEFAULT_WRITABLE_COILS ", 'none')\n"
-"  --writable-registers LIST  holding registers the host may write\n"
+"  --writable-coils LIST    coils a client of role engineer may write\n"
+"                           (default " DEFAULT_WRITABLE_COILS ", 'none')\n"
+"  --writable-registers LIST  holding registers an engineer may write\n"
 "                           (default " DEFAULT_WRITABLE_REGISTERS ", 'none')\n"
+"  --host-coils LIST        of the writable coils, those a client of role host may write\n"
+"                           (default: every writable coil)\n"
+"  --host-registers LIST    of the writable registers, those a host may write (same default)\n"
 "  --no-rt                  do not ask for SCHED_FIFO\n"
 "  --rt-priority N          SCHED_FIFO priority of the scan thread, 1..98 (default %d;\n"
 "                           the watchdog runs 1 level above it, the remote I/O threads\n"
@@ -77,7 +86,9 @@ static void usage(FILE *f)
 "  --monitor PATH           serve the monitoring channel (watch, write, force) on this\n"
 "                           Unix socket, mode 0600 (default: none)\n"
 "  --monitor-token FILE     the token that unlocks writes and forces (without: read-only)\n"
-"  --audit FILE             append every write, force and refused token here\n"
+"  --audit FILE             append every monitor write, force and refused token, and every\n"
+"                           Modbus write request (served or refused, at most %u lines a\n"
+"                           second, the rest summed up) here\n"
 "  --events FILE            the description the application's events read (the signals\n"
 "                           they watch; written by plc run); without an application: ignored\n"
 "  --describe-retain        print the retained entries (path, type, location, bytes) and the\n"
@@ -93,7 +104,7 @@ static void usage(FILE *f)
 "the Modbus address cannot be bound (e.g. the port is in use; nothing is written then).\n",
             DEFAULT_PORT, IO_MAX_DEVICES, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_FRAME_TIMEOUT_MS,
             DEFAULT_RT_PRIORITY,
-            DEFAULT_WATCHDOG_MS, DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
+            DEFAULT_WATCHDOG_MS, MODBUS_AUDIT_PER_S, DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
 }
 
 static int usage_error(const char *fmt, const char *arg)
@@ -126,6 +137,11 @@ static bool parse_double(const char *s, double lo, double *out)
     return true;
 }
 
+const char *role_name(client_role_t role)
+{
+    return role == ROLE_READ ? "read" : role == ROLE_HOST ? "host" : "engineer";
+}
+
 static int add_allow(rt_options_t *o, const char *text)
 {
     char buf[64];
@@ -139,6 +155,17 @@ static int add_allow(rt_options_t *o, const char *text)
         buf[n] = 0;
         p += n + (p[n] == ',');
 
+        client_role_t role = ROLE_ENGINEER;
+        char *eq = strchr(buf, '=');
+        if (eq) {
+            *eq = 0;
+            if (strcmp(eq + 1, "read") == 0)
+                role = ROLE_READ;
+            else if (strcmp(eq + 1, "host") == 0)
+                role = ROLE_HOST;
+            else if (strcmp(eq + 1, "engineer") != 0)
+                return -1;
+        }
         long bits = 32;
         char *slash = strchr(buf, '/');
         if (slash) {
@@ -152,6 +179,10 @@ static int add_allow(rt_options_t *o, const char *text)
         uint32_t mask = bits == 0 ? 0 : 0xffffffffu << (32 - bits);
         o->allow[o->n_allow].mask = mask;
         o->allow[o->n_allow].addr = ntohl(ia.s_addr) & mask;
+        o->allow[o->n_allow].role = role;
+        for (int i = 0; i < o->n_allow; i++)     /* one network, two roles: which one would be meant? */
+            if (o->allow[i].addr == o->allow[o->n_allow].addr && o->allow[i].mask == mask && o->allow[i].role != role)
+                return -1;
         o->n_allow++;
     }
     return 0;
@@ -213,7 +244,7 @@ static int parse_discrete_input(const char *text, int *out)
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_IO_DEVICE, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
        OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_CPU, OPT_CPU_LATENCY, OPT_STATUS,
        OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP,
-       OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS, OPT_SIM_FLAG };
+       OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS, OPT_SIM_FLAG, OPT_HOST_COILS, OPT_HOST_REGISTERS };
 
 static int parse_options(int argc, char **argv, rt_options_t *o)
 {
@@ -231,6 +262,8 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "read-only", no_argument, NULL, OPT_READ_ONLY },
         { "writable-coils", required_argument, NULL, OPT_WRITABLE_COILS },
         { "writable-registers", required_argument, NULL, OPT_WRITABLE_REGISTERS },
+        { "host-coils", required_argument, NULL, OPT_HOST_COILS },
+        { "host-registers", required_argument, NULL, OPT_HOST_REGISTERS },
         { "no-rt", no_argument, NULL, OPT_NO_RT },
         { "rt-priority", required_argument, NULL, OPT_RT_PRIORITY },
         { "cpu", required_argument, NULL, OPT_CPU },
@@ -252,6 +285,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     char err[160];
     long v;
     int c, rc;
+    bool host_coils = false, host_registers = false;
 
     memset(o, 0, sizeof *o);
     snprintf(o->bind, sizeof o->bind, "127.0.0.1");
@@ -318,8 +352,8 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             break;
         case OPT_ALLOW:
             if (add_allow(o, optarg) != 0)
-                return usage_error("--allow: '%s' is not an IPv4 address or ADDR/BITS (at most 32 entries)",
-                                   optarg);
+                return usage_error("--allow: '%s' is not a list of ADDR[/BITS][=read|host|engineer] (at most 32 "
+                                   "entries, one role per network)", optarg);
             break;
         case OPT_MAX_CLIENTS:
             if (!parse_long(optarg, 1, 256, &v))
@@ -341,6 +375,16 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         case OPT_WRITABLE_REGISTERS:
             if ((rc = parse_set(&o->writable_registers, optarg, MAP_HOLDING, "--writable-registers")) != 0)
                 return rc;
+            break;
+        case OPT_HOST_COILS:
+            if ((rc = parse_set(&o->host_coils, optarg, MAP_BITS, "--host-coils")) != 0)
+                return rc;
+            host_coils = true;
+            break;
+        case OPT_HOST_REGISTERS:
+            if ((rc = parse_set(&o->host_registers, optarg, MAP_HOLDING, "--host-registers")) != 0)
+                return rc;
+            host_registers = true;
             break;
         case OPT_NO_RT:
             o->realtime = false;
@@ -410,6 +454,13 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     }
     if (optind < argc)
         return usage_error("unexpected argument '%s'", argv[optind]);
+    /* A host writes within what is writable at all: by default all of it, else the part given. */
+    for (size_t i = 0; i < sizeof o->host_coils.bits / sizeof o->host_coils.bits[0]; i++) {
+        o->host_coils.bits[i] = host_coils ? o->host_coils.bits[i] & o->writable_coils.bits[i]
+                                           : o->writable_coils.bits[i];
+        o->host_registers.bits[i] = host_registers ? o->host_registers.bits[i] & o->writable_registers.bits[i]
+                                                   : o->writable_registers.bits[i];
+    }
     if (o->n_io_devices > 0 && o->io != &io_modbus_layer)
         return usage_error("--io-device needs --io modbus (I/O layer '%s' has no devices)", o->io->name);
     if (o->n_io_devices == 0 && o->io == &io_modbus_layer)
@@ -512,6 +563,8 @@ int main(int argc, char **argv)
 
     if (events_open(&rt, rt.opt.events_path, &rt.events) != 0)
         goto out_retain;
+    if (audit_open(&rt, &rt.audit) != 0)          /* named above; the writes still go to the log */
+        log_msg(rt.log, LOG_WARN, "audit: no audit file: writes are told on the log only");
     if (monitor_start(&rt, &rt.monitor) != 0)      /* watching is a comfort: the PLC runs without it */
         log_msg(rt.log, LOG_WARN, "monitor: not available (the reason is above); the PLC runs without "
                 "watch and force");
@@ -541,6 +594,7 @@ out_retain:
 out_io:
     rt.opt.io->close(rt.io_state);
 out_log:
+    audit_close(rt.audit);
     force_destroy(rt.force);
     events_close(rt.events);
     notify_close(rt.notify);

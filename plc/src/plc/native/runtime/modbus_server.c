@@ -39,6 +39,21 @@
  *   - with real-time scheduling on, this thread runs SCHED_FIFO below the scan.
  * Every decision is logged, at most one line per kind per second: the first
  * event at once, the others counted and summed up in one line a second later.
+ *
+ * Roles: each client gets a role when it is accepted, from the --allow entry
+ * with the longest prefix that holds its address (engineer without --allow).
+ * A `read` client is answered exception 01 to every write function code; a
+ * `host` writes the host ranges only (--host-coils, --host-registers; any
+ * other address: exception 02); an `engineer` every writable address.  The
+ * whole request is checked before anything of it is queued: a multiple write
+ * is applied entirely or not at all.
+ *
+ * Audit: every write request (function codes 5, 6, 15, 16, and 22, 23, which
+ * are never served) goes to the audit file with its peer, role, function
+ * code, table, address range, count and result, at most MODBUS_AUDIT_PER_S
+ * lines a second: beyond that the requests are counted and summed up in one
+ * line when the second is over.  Refused writes are also logged (one line per
+ * second, as the decisions above).
  */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
@@ -80,6 +95,7 @@ typedef struct client {
     uint64_t unsent_since_ns;         /* when responses were first seen unsent; 0: flowing */
     uint64_t admitted_round;          /* server loop round it was accepted in */
     uint32_t served;                  /* requests answered */
+    client_role_t role;
     uint8_t buf[CLIENT_BUFFER];
     char peer[PEER_TEXT];
 } client_t;
@@ -97,6 +113,7 @@ typedef enum event_kind {
     EV_NOT_MODBUS,
     EV_SOCKET_ERROR,
     EV_STOPPING,
+    EV_WRITE_REFUSED,
     EV_COUNT
 } event_kind_t;
 
@@ -114,6 +131,7 @@ static const struct {
     [EV_NOT_MODBUS] = { LOG_WARN, "dropped: MBAP header not Modbus/TCP" },
     [EV_SOCKET_ERROR] = { LOG_WARN, "dropped: socket error" },
     [EV_STOPPING] = { LOG_INFO, "disconnected (runtime stopping)" },
+    [EV_WRITE_REFUSED] = { LOG_WARN, "write refused" },
 };
 
 typedef struct event_gate {
@@ -136,7 +154,13 @@ struct modbus_server {
     uint64_t frame_timeout_ns;
     uint64_t round;                   /* select() rounds so far */
     uint32_t requests, exceptions, refused, dropped;
+    uint32_t writes, writes_refused;
     event_gate_t gates[EV_COUNT];
+    /* the audit's rate bound: a window of one second from its first line */
+    uint64_t audit_window_ns;         /* when the window began; 0: none open */
+    unsigned audit_lines;             /* itemised in it */
+    unsigned audit_held_ok, audit_held_refused;   /* counted, not itemised */
+    char audit_last[300];             /* the last request not itemised */
 };
 
 /* --------------------------------------------------------------- helpers */
@@ -155,6 +179,8 @@ static void publish_counters(modbus_server_t *srv)   /* caller holds the lock */
     diag_put32(b, DIAG_EXCEPTIONS, srv->exceptions);
     diag_put32(b, DIAG_REFUSED, srv->refused);
     diag_put32(b, DIAG_DROPPED, srv->dropped);
+    diag_put32(b, DIAG_WRITES, srv->writes);
+    diag_put32(b, DIAG_WRITES_REFUSED, srv->writes_refused);
     atomic_store_explicit(&srv->rt->live.clients, (unsigned)srv->n_clients, memory_order_relaxed);
     atomic_store_explicit(&srv->rt->live.requests, srv->requests, memory_order_relaxed);
 }
@@ -166,14 +192,23 @@ static void update_counters(modbus_server_t *srv)
     pthread_mutex_unlock(&srv->rt->lock);
 }
 
-static bool allowed(const rt_options_t *opt, uint32_t addr)
+/* Whether a client at addr is accepted, and with which role: that of the --allow entry with the longest
+ * prefix holding addr (entries of one network have one role: main.c); without entries any client, engineer. */
+static bool allowed(const rt_options_t *opt, uint32_t addr, client_role_t *role)
 {
+    int best = -1;
+
+    *role = ROLE_ENGINEER;
     if (opt->n_allow == 0)
         return true;
     for (int i = 0; i < opt->n_allow; i++)
-        if ((addr & opt->allow[i].mask) == opt->allow[i].addr)
-            return true;
-    return false;
+        if ((addr & opt->allow[i].mask) == opt->allow[i].addr
+            && (best < 0 || __builtin_popcount(opt->allow[i].mask) > __builtin_popcount(opt->allow[best].mask)))
+            best = i;
+    if (best < 0)
+        return false;
+    *role = opt->allow[best].role;
+    return true;
 }
 
 static void detail_text(const char *detail, char *out, size_t n)
@@ -323,7 +358,7 @@ static void tune_socket(int fd)
     setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &cnt, sizeof cnt);
 }
 
-static void admit(modbus_server_t *srv, int fd, const char *peer)
+static void admit(modbus_server_t *srv, int fd, const char *peer, client_role_t role)
 {
     const rt_options_t *opt = &srv->rt->opt;
 
@@ -337,12 +372,13 @@ static void admit(modbus_server_t *srv, int fd, const char *peer)
         c->partial_since_ns = c->unsent_since_ns = 0;
         c->served = 0;
         c->admitted_round = srv->round;
+        c->role = role;
         snprintf(c->peer, sizeof c->peer, "%s", peer);
         srv->n_clients++;
         break;
     }
     update_counters(srv);
-    note_event(srv, EV_CONNECTED, peer, "%d of %d", srv->n_clients, opt->max_clients);
+    note_event(srv, EV_CONNECTED, peer, "%d of %d, role %s", srv->n_clients, opt->max_clients, role_name(role));
 }
 
 static void accept_clients(modbus_server_t *srv)
@@ -368,7 +404,8 @@ static void accept_clients(modbus_server_t *srv)
             snprintf(ip, sizeof ip, "?");
         snprintf(peer, sizeof peer, "%s:%u", ip, ntohs(sa.sin_port));
 
-        if (!allowed(opt, ntohl(sa.sin_addr.s_addr))) {
+        client_role_t role;
+        if (!allowed(opt, ntohl(sa.sin_addr.s_addr), &role)) {
             refuse(srv, fd, peer, EV_REFUSED_ALLOWLIST, "");
             continue;
         }
@@ -388,7 +425,7 @@ static void accept_clients(modbus_server_t *srv)
                          "pending", peer, (unsigned long long)((now_ns() - victim->connected_ns) / 1000000u),
                          victim->served, victim->len);
         }
-        admit(srv, fd, peer);
+        admit(srv, fd, peer, role);
     }
 }
 
@@ -398,6 +435,12 @@ static bool is_write(unsigned fc)
 {
     return fc == MODBUS_FC_WRITE_SINGLE_COIL || fc == MODBUS_FC_WRITE_SINGLE_REGISTER
            || fc == MODBUS_FC_WRITE_MULTIPLE_COILS || fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS;
+}
+
+/* Every function code that writes, served or not: what the audit and the write counters see. */
+static bool writes_something(unsigned fc)
+{
+    return is_write(fc) || fc == MODBUS_FC_MASK_WRITE_REGISTER || fc == MODBUS_FC_WRITE_AND_READ_REGISTERS;
 }
 
 static bool is_read(unsigned fc)
@@ -420,7 +463,8 @@ static int check_read(const uint8_t *pdu, unsigned pdu_len)
     return 0;
 }
 
-static int check_write(const rt_options_t *opt, const uint8_t *pdu, unsigned pdu_len)
+/* A write request against the coils and registers `wcoils`, `wregs` (those of the client's role). */
+static int check_write(const addr_set_t *wcoils, const addr_set_t *wregs, const uint8_t *pdu, unsigned pdu_len)
 {
     const unsigned fc = pdu[0], addr = be16(pdu + 1), qty = be16(pdu + 3);   /* qty: the value for 5 and 6 */
 
@@ -428,20 +472,20 @@ static int check_write(const rt_options_t *opt, const uint8_t *pdu, unsigned pdu
     case MODBUS_FC_WRITE_SINGLE_COIL:
         if (pdu_len != 5 || (qty != 0x0000 && qty != 0xFF00))
             return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
-        if (addr >= MAP_BITS || !addr_set_has(&opt->writable_coils, addr))
+        if (addr >= MAP_BITS || !addr_set_has(wcoils, addr))
             return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
         return 0;
     case MODBUS_FC_WRITE_SINGLE_REGISTER:
         if (pdu_len != 5)
             return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
-        if (addr >= MAP_HOLDING || !addr_set_has(&opt->writable_registers, addr))
+        if (addr >= MAP_HOLDING || !addr_set_has(wregs, addr))
             return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
         return 0;
     default: {                                  /* multiple coils, multiple registers */
         const bool coils = fc == MODBUS_FC_WRITE_MULTIPLE_COILS;
         const unsigned max = coils ? MODBUS_MAX_WRITE_BITS : MODBUS_MAX_WRITE_REGISTERS;
         const unsigned size = coils ? MAP_BITS : MAP_HOLDING;
-        const addr_set_t *w = coils ? &opt->writable_coils : &opt->writable_registers;
+        const addr_set_t *w = coils ? wcoils : wregs;
         if (pdu_len < 6 || qty < 1 || qty > max)
             return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
         const unsigned bytes = coils ? (qty + 7) / 8 : 2 * qty;
@@ -457,19 +501,130 @@ static int check_write(const rt_options_t *opt, const uint8_t *pdu, unsigned pdu
     }
 }
 
-/* Check a request.  Returns 0 when it may be served, else the exception code.
- * pdu points at the function code, pdu_len counts it. */
-static int check_request(const rt_options_t *opt, const uint8_t *pdu, unsigned pdu_len)
+/* Check a request of a client of `role`.  Returns 0 when it may be served, else the exception code, with
+ * *why saying what refused it.  pdu points at the function code, pdu_len counts it. */
+static int check_request(const rt_options_t *opt, client_role_t role, const uint8_t *pdu, unsigned pdu_len,
+                         const char **why)
+{
+    const unsigned fc = pdu[0];
+    int exc;
+
+    *why = "";
+    if (!is_read(fc) && !is_write(fc)) {
+        *why = "function code not served";
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    if (is_write(fc) && opt->read_only) {
+        *why = "read-only server";
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;   /* the whole write function set is off */
+    }
+    if (is_write(fc) && role == ROLE_READ) {
+        *why = "role read writes nothing";
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    if (pdu_len < 5) {
+        *why = "request too short";
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+    }
+    if (is_read(fc))
+        return check_read(pdu, pdu_len);
+    if (role == ROLE_HOST) {
+        exc = check_write(&opt->host_coils, &opt->host_registers, pdu, pdu_len);
+        if (exc == MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS)
+            *why = check_write(&opt->writable_coils, &opt->writable_registers, pdu, pdu_len) == 0
+                   ? "outside the host ranges: an engineer's" : "not writable";
+    } else {
+        exc = check_write(&opt->writable_coils, &opt->writable_registers, pdu, pdu_len);
+        if (exc == MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS)
+            *why = "not writable";
+    }
+    if (exc == MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE)
+        *why = "bad quantity, value or byte count";
+    return exc;
+}
+
+/* ---------------------------------------------------------------- audit */
+
+static const char *exception_name(int exc)
+{
+    return exc == MODBUS_EXCEPTION_ILLEGAL_FUNCTION ? "ILLEGAL FUNCTION"
+           : exc == MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS ? "ILLEGAL DATA ADDRESS"
+           : exc == MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE ? "ILLEGAL DATA VALUE" : "?";
+}
+
+/* "fc=16 registers 520-521 count=2": what a write request touches, as far as it says. */
+static void describe_write(const uint8_t *pdu, unsigned pdu_len, char *out, size_t n)
 {
     const unsigned fc = pdu[0];
 
-    if (!is_read(fc) && !is_write(fc))
-        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
-    if (is_write(fc) && opt->read_only)
-        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;   /* the whole write function set is off */
-    if (pdu_len < 5)
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
-    return is_read(fc) ? check_read(pdu, pdu_len) : check_write(opt, pdu, pdu_len);
+    if (pdu_len < 5) {
+        snprintf(out, n, "fc=%u (%u bytes: too short)", fc, pdu_len);
+        return;
+    }
+    const unsigned addr = be16(pdu + 1), qty = be16(pdu + 3);
+    switch (fc) {
+    case MODBUS_FC_WRITE_SINGLE_COIL:
+        snprintf(out, n, "fc=%u coil %u count=1", fc, addr);
+        break;
+    case MODBUS_FC_WRITE_SINGLE_REGISTER:
+    case MODBUS_FC_MASK_WRITE_REGISTER:
+        snprintf(out, n, "fc=%u register %u count=1", fc, addr);
+        break;
+    case MODBUS_FC_WRITE_AND_READ_REGISTERS:
+        if (pdu_len >= 9)
+            snprintf(out, n, "fc=%u registers %u-%u count=%u", fc, be16(pdu + 5),
+                     be16(pdu + 5) + (be16(pdu + 7) ? be16(pdu + 7) - 1u : 0u), be16(pdu + 7));
+        else
+            snprintf(out, n, "fc=%u (%u bytes: too short)", fc, pdu_len);
+        break;
+    default:
+        snprintf(out, n, "fc=%u %s %u-%u count=%u", fc, fc == MODBUS_FC_WRITE_MULTIPLE_COILS ? "coils" : "registers",
+                 addr, addr + (qty ? qty - 1u : 0u), qty);
+        break;
+    }
+}
+
+/* The summary of the requests of the audit window not itemised, when there are some. */
+static void audit_summary(modbus_server_t *srv, uint64_t t)
+{
+    const unsigned held = srv->audit_held_ok + srv->audit_held_refused;
+
+    if (held > 0)
+        audit_line(srv->rt->audit, "modbus %u more write requests in %.1f s not itemised (at most %u lines a "
+                   "second): %u served, %u refused; the last: %s", held, (double)(t - srv->audit_window_ns) / 1e9,
+                   MODBUS_AUDIT_PER_S, srv->audit_held_ok, srv->audit_held_refused, srv->audit_last);
+    srv->audit_held_ok = srv->audit_held_refused = 0;
+    srv->audit_window_ns = 0;
+    srv->audit_lines = 0;
+}
+
+/* A write request in the audit file: itemised while its window has room, else counted. */
+static void audit_write(modbus_server_t *srv, const client_t *c, const char *what, int exc, const char *why)
+{
+    char result[120];
+    const uint64_t t = now_ns();
+
+    if (!srv->rt->audit)
+        return;
+    if (srv->audit_window_ns != 0 && t - srv->audit_window_ns >= EVENT_WINDOW_NS)
+        audit_summary(srv, t);
+    if (srv->audit_window_ns == 0)
+        srv->audit_window_ns = t;
+    if (exc)
+        snprintf(result, sizeof result, "refused: exception %02d %s (%s)", exc, exception_name(exc), why);
+    else
+        snprintf(result, sizeof result, "ok");
+    if (srv->audit_lines < MODBUS_AUDIT_PER_S) {
+        srv->audit_lines++;
+        audit_line(srv->rt->audit, "modbus peer=%s role=%s %s -> %s", c->peer, role_name(c->role), what, result);
+        return;
+    }
+    if (exc)
+        srv->audit_held_refused++;
+    else
+        srv->audit_held_ok++;
+    snprintf(srv->audit_last, sizeof srv->audit_last, "peer=%s role=%s %s -> %s", c->peer, role_name(c->role), what,
+             result);
 }
 
 /* Copy what a valid request reads into the scratch mapping, or queue what it
@@ -517,17 +672,32 @@ static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, u
 {
     const uint8_t *pdu = req + MBAP_HEADER;
     const unsigned pdu_len = len - MBAP_HEADER;
-    int exc = check_request(&srv->rt->opt, pdu, pdu_len);
+    const char *why;
+    int exc = check_request(&srv->rt->opt, c->role, pdu, pdu_len, &why);
+    const bool write = writes_something(pdu[0]);
     int rc;
 
     pthread_mutex_lock(&srv->rt->lock);
     if (exc == 0)
-        serve_locked(srv, pdu);
+        serve_locked(srv, pdu);          /* checked whole above: a multiple write is queued whole */
     srv->requests++;
     if (exc)
         srv->exceptions++;
+    if (write && exc)
+        srv->writes_refused++;
+    else if (write)
+        srv->writes++;
     publish_counters(srv);
     pthread_mutex_unlock(&srv->rt->lock);
+
+    if (write) {
+        char what[96];
+        describe_write(pdu, pdu_len, what, sizeof what);
+        audit_write(srv, c, what, exc, why);
+        if (exc)
+            note_event(srv, EV_WRITE_REFUSED, c->peer, "role %s, %s: exception %02d, %s", role_name(c->role), what,
+                       exc, why);
+    }
 
     if (c->served == 0)
         tune_socket(c->fd);
@@ -665,6 +835,12 @@ static void *server_thread(void *arg)
 
         if (flush < due)
             due = flush;
+        if (srv->audit_held_ok + srv->audit_held_refused > 0) {
+            if (t - srv->audit_window_ns >= EVENT_WINDOW_NS)
+                audit_summary(srv, t);
+            else if (srv->audit_window_ns + EVENT_WINDOW_NS < due)
+                due = srv->audit_window_ns + EVENT_WINDOW_NS;
+        }
         if (due != UINT64_MAX) {
             uint64_t left = due > t ? due - t : 0;
             left += 999;                                  /* round up to whole microseconds */
@@ -714,6 +890,7 @@ static void *server_thread(void *arg)
         if (srv->clients[i].fd >= 0)
             close_client(srv, &srv->clients[i], EV_STOPPING, "%s", "");
     flush_events(srv, now_ns(), true);
+    audit_summary(srv, now_ns());
     return NULL;
 }
 
@@ -759,7 +936,7 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
     struct in_addr ia;
     struct sockaddr_in bound;
     socklen_t blen = sizeof bound;
-    char allow_text[256] = "any address";
+    char allow_text[400] = "any address";
 
     if (!srv)
         return -1;
@@ -810,8 +987,10 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
             struct in_addr a = { htonl(opt->allow[i].addr) };
             char ip[INET_ADDRSTRLEN];
             inet_ntop(AF_INET, &a, ip, sizeof ip);
-            used += (size_t)snprintf(allow_text + used, sizeof allow_text - used, "%s%s/%d", i ? ", " : "", ip,
-                                     __builtin_popcount(opt->allow[i].mask));
+            used += (size_t)snprintf(allow_text + used, sizeof allow_text - used, "%s%s/%d%s%s", i ? ", " : "", ip,
+                                     __builtin_popcount(opt->allow[i].mask),
+                                     opt->allow[i].role == ROLE_ENGINEER ? "" : " as ",
+                                     opt->allow[i].role == ROLE_ENGINEER ? "" : role_name(opt->allow[i].role));
         }
     }
     log_msg(rt->log, LOG_INFO, "modbus: listening on %s:%u (max %d clients, clients allowed from %s, "

@@ -85,7 +85,6 @@ struct monitor {
     char path[sizeof(((struct sockaddr_un *)0)->sun_path)];
     char token[256];
     bool have_token;
-    FILE *audit;
     client_t clients[MON_MAX_CLIENTS];
     snap_item_t items[SNAP_MAX_ITEMS];
     uint8_t data[SNAP_MAX_BYTES];
@@ -197,18 +196,8 @@ static void reply_error(client_t *c, const char *fmt, ...)
 static void audit(monitor_t *m, const client_t *c, const char *what, const char *path, const char *value,
                   const char *result)
 {
-    struct timespec ts;
-    struct tm tm;
-    char when[40];
-
-    clock_gettime(CLOCK_REALTIME, &ts);
-    gmtime_r(&ts.tv_sec, &tm);
-    strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%S", &tm);
-    if (m->audit) {
-        fprintf(m->audit, "%s.%03ldZ uid=%u pid=%u %s %s%s%s -> %s\n", when, ts.tv_nsec / 1000000, c->uid, c->pid,
-                what, path ? path : "", value ? " := " : "", value ? value : "", result);
-        fflush(m->audit);
-    }
+    audit_line(m->rt->audit, "uid=%u pid=%u %s %s%s%s -> %s", c->uid, c->pid, what, path ? path : "",
+               value ? " := " : "", value ? value : "", result);
     log_msg(m->rt->log, strncmp(result, "ok", 2) == 0 ? LOG_INFO : LOG_WARN, "monitor: %s %s%s%s by uid %u pid %u: %s",
             what, path ? path : "", value ? " := " : "", value ? value : "", c->uid, c->pid, result);
 }
@@ -849,12 +838,9 @@ int monitor_start(runtime_t *rt, monitor_t **out)
         m->clients[i].fd = -1;
     if (rt->opt.monitor_token_file && read_token(m, rt->opt.monitor_token_file) != 0)
         goto fail;
-    if (rt->opt.audit_path) {
-        m->audit = fopen(rt->opt.audit_path, "a");
-        if (!m->audit) {
-            log_msg(rt->log, LOG_ERROR, "monitor: cannot open the audit file %s: %m", rt->opt.audit_path);
-            goto fail;
-        }
+    if (rt->opt.audit_path && !rt->audit) {
+        log_msg(rt->log, LOG_ERROR, "monitor: no writes and forces without their audit file %s", rt->opt.audit_path);
+        goto fail;
     }
     rt->force = force_create();
     if (!rt->force || pipe2(m->wake, O_CLOEXEC) != 0)
@@ -894,8 +880,6 @@ void monitor_stop(monitor_t *m)
         close(m->wake[0]);
     if (m->wake[1] >= 0)
         close(m->wake[1]);
-    if (m->audit)
-        fclose(m->audit);
     /* rt->force stays until the scan has stopped calling the hooks: freed by main after scan_run */
     free(m);
 }

@@ -108,6 +108,9 @@ enum diag_offset {
     DIAG_UPTIME_S = 48,        /* u32: seconds since the scan loop started */
     DIAG_SKIPPED = 50,         /* u32: deadlines skipped after long overruns */
     DIAG_APP_FAULT = 54,       /* i16: the application's latched fault code (events_fault), 0 = none */
+    DIAG_WRITES = 56,          /* u32: Modbus write requests served */
+    DIAG_WRITES_REFUSED = 58,  /* u32: Modbus write requests answered with an exception (role, read-only,
+                                  a coil or register the client's role may not write, a bad value) */
     DIAG_DROPPED = 52          /* u32: connections the server closed (frame timeout, slow
                                   reader, slot reclaimed, not Modbus, socket error) */
 };
@@ -221,9 +224,19 @@ const io_layer_t *io_layer_find(const char *name);
 
 #define RT_MAX_ALLOW 32
 
+/* What a Modbus client may write, decided at accept time from its address (--allow ADDR[/BITS][=ROLE]). */
+typedef enum client_role {
+    ROLE_READ,       /* no write function code served: exception 01 */
+    ROLE_HOST,       /* the host command ranges only (--host-coils, --host-registers) */
+    ROLE_ENGINEER    /* every writable coil and register (--writable-coils, --writable-registers) */
+} client_role_t;
+
+const char *role_name(client_role_t role);
+
 typedef struct allow_entry {
     uint32_t addr;   /* host byte order */
     uint32_t mask;
+    client_role_t role;
 } allow_entry_t;
 
 typedef enum status_mode { STATUS_AUTO, STATUS_TTY, STATUS_LOG, STATUS_OFF } status_mode_t;
@@ -241,8 +254,10 @@ typedef struct rt_options {
     int max_clients;
     int frame_timeout_ms;          /* a request begun must be complete within this */
     bool read_only;                /* every write function code answered with exception 01 */
-    addr_set_t writable_coils;
+    addr_set_t writable_coils;     /* what an engineer may write */
     addr_set_t writable_registers;
+    addr_set_t host_coils;         /* what a host may write: within the writable sets */
+    addr_set_t host_registers;
     bool realtime;
     int rt_priority;
     int cpu;                       /* the scan thread's CPU (--cpu; -1: not pinned) */
@@ -318,6 +333,7 @@ typedef struct notifier notifier_t;
 typedef struct monitor monitor_t;           /* monitor.h */
 typedef struct force_state force_state_t;   /* monitor.h */
 typedef struct events events_t;             /* monitor.h */
+typedef struct audit audit_t;
 
 struct runtime {
     rt_options_t opt;
@@ -341,6 +357,7 @@ struct runtime {
     monitor_t *monitor;            /* NULL without --monitor */
     force_state_t *force;          /* writes, forces, snapshots (with the monitor) */
     events_t *events;              /* NULL without --events */
+    audit_t *audit;                /* NULL without --audit */
     plc_bool_t *forces_flag;       /* the program's variable at FORCES_ACTIVE_BIT, NULL if it has none */
     pthread_t scan_thread;
     uint64_t started_ns;           /* when the scan loop started (monotonic) */
@@ -398,6 +415,7 @@ int scan_run(runtime_t *rt);
 uint64_t now_ns(void);
 
 /* modbus_server.c */
+#define MODBUS_AUDIT_PER_S 50u     /* Modbus write requests itemised in the audit file per second; the rest summed up */
 /* 0 when the Modbus address can be bound now; -1 (logged) when not, e.g. the port is in use: checked before
  * anything is written, so a runtime that cannot serve leaves no retain file behind. */
 int modbus_server_probe(runtime_t *rt);
@@ -414,6 +432,11 @@ bool retain_last_failed(const retain_store_t *rs);
 uint32_t crc32_update(uint32_t crc, const void *data, size_t len);
 int retain_describe(runtime_t *rt, FILE *out);          /* the retained entries and located variables */
 const char *plc_type_name(unsigned type);               /* "INT" for PLC_T_INT */
+
+/* audit.c: the audit file (--audit); every function accepts NULL (no file: nothing written) */
+int audit_open(runtime_t *rt, audit_t **out);           /* *out NULL without --audit */
+void audit_line(audit_t *a, const char *fmt, ...) __attribute__((format(printf, 2, 3)));   /* never waits */
+void audit_close(audit_t *a);                           /* writes what is queued */
 
 /* watchdog.c */
 int watchdog_start(runtime_t *rt, watchdog_t **out);
