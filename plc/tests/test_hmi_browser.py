@@ -228,19 +228,39 @@ def test_the_page_shows_a_tool_change_a_forced_input_and_its_fault_and_refuses_w
         wait_page(b, lambda b: not b.find_elements(By.CSS_SELECTOR, ".pocket.worn"), 10, "T5 reset: no worn mark")
         assert "tools reset row 5 T5 (page) -> done" in (plant["tmp"] / "audit.log").read_text()
 
-        # --- the user procedures (issue 31): listed from the sequence set, switched with the token, and the
-        # program-stopped line runs the mode-3 alarm, whose result and time the page shows
+        # --- the user procedures (issue 31): listed from the sequence set, which ships them disabled (no switch
+        # can enable them); commissioned through the monitor (FB_AtcMachine's ProcUseDefs / ProcDefs: the alarm
+        # light's compiled definition, enabled) the page's switch disables it through ProcDisabled (the page cannot
+        # enable it again: the set has it disabled; the test clears ProcDisabled) and the program-stopped line runs
+        # the mode-3 alarm, whose result and time the page shows
         wait_page(b, lambda b: len(b.find_elements(By.CSS_SELECTOR, "#procs tbody tr")) == 2, 10, "two procedures")
-        lube = "#procs tr[data-slot='1']"
-        wait_page(b, lambda b: b.find_element(By.CSS_SELECTOR, lube).text.startswith("0 lube every 240000 ms enabled"),
-                  10, "the lube row")
-        b.find_element(By.CSS_SELECTOR, lube + " button.proc-switch").click()
-        wait_page(b, lambda b: "procedure 0 (lube) disabled" in text(b, "message"), 30, "the switch answered")
-        wait_page(b, lambda b: "disabled (page)" in b.find_element(By.CSS_SELECTOR, lube).text, 10, "lube disabled")
-        b.find_element(By.CSS_SELECTOR, lube + " button.proc-switch").click()
-        wait_page(b, lambda b: "enabled" in b.find_element(By.CSS_SELECTOR, lube).text.split("ms ")[-1], 10,
-                  "lube enabled again")
+        lube, alarm = "#procs tr[data-slot='1']", "#procs tr[data-slot='2']"
+        wait_page(b, lambda b: b.find_element(By.CSS_SELECTOR, lube).text.startswith(
+            "0 lube every 240000 ms disabled (sequence set)"), 10, "the lube row: shipped disabled")
+        assert not b.find_element(By.CSS_SELECTOR, lube + " button.proc-switch").is_displayed(), "no switch"
+        compiled = "ATC.MACHINE.PROCS.PROCDEFS[2]."
+        fields = ("DEFINED", "ID", "MODE", "SEQUENCE", "STOPONERROR", "CANSTOPGCODE", "ERRMSG")   # mode 3: no interval
+        with Monitor(plant["sock"], timeout=5 * h.SLOW) as m:
+            m.auth(TOKEN)
+            values = m.read(*(compiled + f for f in fields))
+            shipped = {f: values["CONFIG0.RES0." + compiled + f] for f in fields}
+            assert (shipped["DEFINED"], shipped["ID"], shipped["MODE"]) == (True, 3, 3), shipped
+            for f in fields:
+                m.write("ATC.MACHINE.PROCDEFS[2]." + f, shipped[f])
+            m.write("ATC.MACHINE.PROCDEFS[2].ENABLED", True)
+            m.write("ATC.MACHINE.PROCUSEDEFS", True)
+        wait_page(b, lambda b: b.find_element(By.CSS_SELECTOR, alarm).text.startswith(
+            "3 alarm light on error or stop enabled"), 10, "the alarm commissioned")
+        b.find_element(By.CSS_SELECTOR, alarm + " button.proc-switch").click()
+        wait_page(b, lambda b: "procedure 3 (alarm light) disabled" in text(b, "message"), 30, "the switch answered")
+        wait_page(b, lambda b: "disabled (sequence set)" in b.find_element(By.CSS_SELECTOR, alarm).text, 10,
+                  "alarm disabled")
+        assert not b.find_element(By.CSS_SELECTOR, alarm + " button.proc-switch").is_displayed(), "no way back"
         with ModbusClient("127.0.0.1", plant["rt"].port, timeout=5 * h.SLOW) as line:
+            assert line.read_holding(rmap.signal("ProcDisabled").address, 1) == [2], "the switch set bit 1 (slot 2)"
+            line.write_register(rmap.signal("ProcDisabled").address, 0)
+            wait_page(b, lambda b: b.find_element(By.CSS_SELECTOR, alarm).text.startswith(
+                "3 alarm light on error or stop enabled"), 10, "the alarm enabled again")
             line.write_coil(rmap.signal("ProgramStopped").address, True)
             wait_page(b, lambda b: text(b, "proc-last").startswith("last: procedure 3 DONE (1), ran "), 30,
                       "the alarm's result on the page")

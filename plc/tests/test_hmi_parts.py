@@ -198,8 +198,11 @@ def test_the_page_lists_the_shipped_procedures_and_switches_them_through_procdis
     from atc.hmi import server
     procs, texts = server.procedures_of(REPO)
     assert [(p["slot"], p["id"], p["name"], p["when"], p["enabled"]) for p in procs] == [
-        (1, 0, "lube", "every 240000 ms", True), (2, 3, "alarm light", "on error or stop", True)]
+        (1, 0, "lube", "every 240000 ms", False), (2, 3, "alarm light", "on error or stop", False)], \
+        "the set ships its example procedures disabled (safe defaults: their I/O may not be wired)"
     assert "lubrication: no oil pressure within 15 s" in texts.values()
+    shipped = procs
+    procs = [dict(p, enabled=True) for p in shipped]    # as an integrator enables them once the I/O is wired
     info = mapinfo.load(REPO / "modbus_map" / "map.toml")
     addr = Addr(coil={s.name: s.address for s in info.rmap.signals if s.table == "coil"},
                 reg={s.name: s.address for s in info.rmap.signals if s.table == "holding_register"})
@@ -214,7 +217,7 @@ def test_the_page_lists_the_shipped_procedures_and_switches_them_through_procdis
         assert fake.r("ProcDisabled") == 1
         assert "no procedure 5" in server.run_command(hub, "procedure", {"slot": 5, "enabled": True})["error"]
         assert "needs" in server.run_command(hub, "procedure", {"slot": "1", "enabled": True})["error"]
-        hub.procedures = [dict(procs[0], enabled=False)]
+        hub.procedures = shipped
         refused = server.run_command(hub, "procedure", {"slot": 1, "enabled": True})
         assert not refused["ok"] and "disabled in the sequence set" in refused["error"]
         assert fake.r("ProcDisabled") == 1, "a refused switch writes nothing"

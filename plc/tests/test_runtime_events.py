@@ -9,6 +9,7 @@ the real E-stop chain, which is open).  Every wait is bounded (SLOW); no verdict
 from __future__ import annotations
 
 import re
+import shutil
 import threading
 from pathlib import Path
 
@@ -22,15 +23,14 @@ from plc.hmi import status
 from plc.hmi.monitor import Monitor
 from plc.modbus import ModbusClient
 from atc.host.session import Session, Timeouts
+from seq_testlib import run_cli as seq_cli
 
 REPO = Path(__file__).resolve().parents[2]
 TOKEN = "events-test-token-0123456789"
 
 
-@pytest.fixture(scope="module")
-def app(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo, str]:
-    tmp = tmp_path_factory.mktemp("app")
-    result = driver.compile_sources([REPO / "st_src"], portability=False)
+def build_app(st_dir: Path, tmp: Path) -> tuple[Path, Path, mapinfo.MapInfo, str]:
+    result = driver.compile_sources([st_dir], portability=False)
     assert result.ok, "the application must compile"
     c_file = tmp / "program.c"
     c_file.write_text(result.c_text)
@@ -38,6 +38,28 @@ def app(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo, str]:
     setup = runtime_setup(REPO / "modbus_map" / "map.toml", tmp)     # what `plc run` of the project links and passes
     binary = runtime.build_runtime(c_file, h.CACHE, sanitize=h.SANITIZE, observer=setup.observer)
     return binary, setup.events_file, info, setup.sim_flag
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo, str]:
+    return build_app(REPO / "st_src", tmp_path_factory.mktemp("app"))
+
+
+@pytest.fixture(scope="module")
+def app_procs_enabled(tmp_path_factory) -> tuple[Path, Path, mapinfo.MapInfo, str]:
+    """The application with the shipped sequence set's procedures enabled, as an integrator enables them once
+    their I/O is wired (the set ships them disabled): a copy of the set with `enabled = true`, compiled into a copy
+    of st_src by `plc seq compile`."""
+    tmp = tmp_path_factory.mktemp("app_procs")
+    shutil.copytree(REPO / "configs" / "sequences", tmp / "sequences")
+    index = tmp / "sequences" / "sequences.toml"
+    text, enabled = re.subn(r"(?m)^enabled = false\b", "enabled = true", index.read_text(encoding="utf-8"))
+    assert enabled == 2, "the shipped set has two procedures, both disabled"
+    index.write_text(text, encoding="utf-8")
+    shutil.copytree(REPO / "st_src", tmp / "st_src")
+    run = seq_cli("compile", index, "--out", tmp / "st_src" / "sequence" / "generated" / "SequenceTables.st")
+    assert run.status == 0, run.err
+    return build_app(tmp / "st_src", tmp)
 
 
 def app_runtime(app, tmp_path: Path) -> h.Runtime:
@@ -167,13 +189,13 @@ def test_a_force_during_a_prepare_turn_drops_the_position_and_nothing_claims_the
             client.close()
 
 
-def test_the_log_tells_a_user_procedure_start_and_end(app, tmp_path):
+def test_the_log_tells_a_user_procedure_start_and_end(app_procs_enabled, tmp_path):
     # issue 31: the program-stopped coil (what LinuxCNC's halui feeds through mb2hal) runs the shipped mode-3
-    # procedure, id 3 (OUT 6 1): the log names its start and its end with the result
-    info = app[2]
+    # procedure, id 3 (OUT 6 1), here enabled: the log names its start and its end with the result
+    info = app_procs_enabled[2]
     coil = {s.name: s.address for s in info.rmap.signals if s.table == "coil"}
     reg = {s.name: s.address for s in info.rmap.signals if s.table == "holding_register"}
-    with app_runtime(app, tmp_path) as rt:
+    with app_runtime(app_procs_enabled, tmp_path) as rt:
         rt.wait_for(r"changer: tool 0 in the spindle, state AtcIdle")
         client = ModbusClient("127.0.0.1", rt.port, timeout=5 * h.SLOW)
         client.connect()
@@ -183,5 +205,20 @@ def test_the_log_tells_a_user_procedure_start_and_end(app, tmp_path):
             rt.wait_for(r"procedure 3 ended: DONE")
             assert client.read_holding(reg["ProcLastId"], 1) == [3]
             assert client.read_coils(coil["UserOut6"], 1) == [True], "the alarm light is on"
+        finally:
+            client.close()
+
+
+def test_the_shipped_set_enables_no_procedure(app, tmp_path):
+    # safe defaults: the application built from the shipped set has its example procedures compiled disabled, so
+    # the PLC reports none that may run (ProcEnabled 0) and none ever ended (ProcLastId -1)
+    reg = {s.name: s.address for s in app[2].rmap.signals if s.table == "holding_register"}
+    with app_runtime(app, tmp_path) as rt:
+        rt.wait_for(r"changer: tool 0 in the spindle, state AtcIdle")
+        client = ModbusClient("127.0.0.1", rt.port, timeout=5 * h.SLOW)
+        client.connect()
+        try:
+            assert client.read_holding(reg["ProcEnabled"], 1) == [0], "no procedure may run"
+            assert client.read_holding(reg["ProcLastId"], 1) == [0xFFFF], "none has run (-1)"
         finally:
             client.close()
