@@ -177,14 +177,19 @@ def test_export_then_load_gives_the_same_table(plc, tmp_path: Path):
         {t: {k: v for k, v in r.items() if k != "row"} for t, r in before.items()}
 
 
+def tooldb(plc, offsets: Path, talk: str) -> subprocess.CompletedProcess:
+    """configs/linuxcnc/bin/atc-tooldb as LinuxCNC runs it (DB_PROGRAM), told `talk` on its stdin; it exits 0."""
+    cmd = [sys.executable, str(REPO / "configs" / "linuxcnc" / "bin" / "atc-tooldb"), "--port", str(plc.port),
+           "--offsets", str(offsets)]
+    r = subprocess.run(cmd, input=talk, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    return r
+
+
 def test_the_tool_database_program_serves_the_plcs_table(plc, tmp_path: Path):
     """configs/linuxcnc/bin/atc-tooldb as LinuxCNC runs it (DB_PROGRAM): the version, then g, p, l, u."""
     offsets = tmp_path / "offsets.tbl"
-    cmd = [sys.executable, str(REPO / "configs" / "linuxcnc" / "bin" / "atc-tooldb"), "--port", str(plc.port),
-           "--offsets", str(offsets)]
-    talk = "g\np T101 P3 Z1.5 D6 ;drill 6\nl T101 P0\nu T0 P0\nbogus\ng\n"
-    r = subprocess.run(cmd, input=talk, capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
+    r = tooldb(plc, offsets, "g\np T101 P3 Z1.5 D6 ;drill 6\nl T101 P0\nu T0 P0\nbogus\ng\n")
     lines = r.stdout.splitlines()
     assert lines[0] == "v2.1"
     first = lines[1:lines.index("FINI")]
@@ -206,11 +211,7 @@ def test_a_tool_database_put_with_another_pocket_is_a_table_edit(plc, tmp_path: 
     kept either way, and both answers are logged."""
     ok(plc.tools("clear", "T6"))                                     # pocket 6 free
     offsets = tmp_path / "offsets.tbl"
-    cmd = [sys.executable, str(REPO / "configs" / "linuxcnc" / "bin" / "atc-tooldb"), "--port", str(plc.port),
-           "--offsets", str(offsets)]
-    talk = "p T101 P6 Z2 D6 ;moved\np T101 P5 Z3 D6 ;onto T5\np T101 P6 Z4 D6 ;same pocket\n"
-    r = subprocess.run(cmd, input=talk, capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
+    r = tooldb(plc, offsets, "p T101 P6 Z2 D6 ;moved\np T101 P5 Z3 D6 ;onto T5\np T101 P6 Z4 D6 ;same pocket\n")
     lines = r.stdout.splitlines()
     refusal = "NAK the PLC refused T101 in pocket 5: refused: pocket outside the carousel or held by another row"
     assert lines == ["v2.1", "FINI (update recvd) T101 P6 Z2 D6 ;moved", refusal,
