@@ -424,6 +424,11 @@ def strucpp_not_ints(pou: A.Pou, diags: Diagnostics) -> None:
 GROWING = ("CONCAT", "INSERT", "REPLACE")
 
 
+def call_inputs(call: A.Call) -> list:
+    """A standard function call's input values in parameter order (sema's std_args), else as written."""
+    return call.std_args or [a.value for a in call.args if not a.output]
+
+
 def strucpp_string_lengths(pou: A.Pou, diags: Diagnostics) -> None:
     """A plain STRING holds 126 characters in OpenPLC v3 (MATIEC) and 254 in STruC++ (OpenPLC v4): only CONCAT,
     INSERT and REPLACE make a string longer than the literals (at most 125 characters, rule string-literal), and
@@ -431,10 +436,9 @@ def strucpp_string_lengths(pou: A.Pou, diags: Diagnostics) -> None:
     cut: set[int] = set()
     nodes = [n for stmt in pou.body for n in A.walk(stmt)]
     for node in nodes:
-        if isinstance(node, A.Call) and node.func.upper() == "LEFT" and len(node.args) == 2:
-            length = node.args[1].value
-            if isinstance(length, A.IntLit) and length.value <= 126 and node.args[0].value is not None:
-                cut.add(id(node.args[0].value))
+        values = call_inputs(node) if isinstance(node, A.Call) and node.func.upper() == "LEFT" else []
+        if len(values) == 2 and isinstance(values[1], A.IntLit) and values[1].value <= 126 and values[0] is not None:
+            cut.add(id(values[0]))
     for node in nodes:
         if isinstance(node, A.Call) and node.func.upper() in GROWING and id(node) not in cut \
                 and getattr(node.ty, "name", None) == "STRING":
@@ -454,7 +458,7 @@ def strucpp_string_calls(pou: A.Pou, diags: Diagnostics) -> None:
         if not isinstance(node, A.Call):
             continue
         func = node.func.upper()
-        values = node.std_args or [a.value for a in node.args if not a.output]
+        values = call_inputs(node)
         name = node.text or func
         if func == "CONCAT" and len(values) > 2:
             report(diags, "strucpp-string-call", node.pos, "openplc-v4", call=name,
