@@ -373,6 +373,7 @@ def test_plc_run_c_that_the_c_compiler_rejects_in_the_program_is_an_internal_err
     fake_cc.write_text("#!/bin/sh\n"
                        "case \"$*\" in *--version*|*-MM*) exec gcc \"$@\";; esac\n"
                        "for a in \"$@\"; do case \"$a\" in *program.c) prog=$a;; esac; done\n"
+                       "[ -n \"$prog\" ] || exec gcc \"$@\"\n"
                        "echo \"$prog:5:2: error: the fake compiler refuses this\" >&2\nexit 1\n")
     fake_cc.chmod(0o755)
     monkeypatch.setenv("CC", str(fake_cc))

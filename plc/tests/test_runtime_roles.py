@@ -197,10 +197,13 @@ def test_a_write_burst_is_itemised_up_to_the_bound_and_summed_up_beyond_it(binar
 
 
 def test_a_bad_role_on_the_command_line_is_a_usage_error(binary):
-    for allow in ("127.0.0.1=admin", "127.0.0.1=read,127.0.0.1=host"):
+    cases = {"127.0.0.1=admin": "--allow: 'admin' is not a role (read, host or engineer)",
+             "127.0.0.1=read,127.0.0.1=host": "--allow: 127.0.0.1/32 is given two roles (read and host)",
+             "10.0.0.0/33=read": "--allow: '33' is not a prefix length 0..32"}
+    for allow, message in cases.items():
         result = h.subprocess.run([str(binary), "--allow", allow], capture_output=True, text=True, timeout=30 * h.SLOW)
         assert result.returncode == 2, result.stderr
-        assert "--allow: '" + allow + "' is not a list of ADDR[/BITS][=read|host|engineer]" in result.stderr
+        assert message in result.stderr and "(expected ADDR[/BITS][=read|host|engineer], ...)" in result.stderr
 
 
 # ------------------------------------------------------------------- the run configuration

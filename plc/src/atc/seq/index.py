@@ -101,7 +101,7 @@ def _text(value: object) -> str:
 
 
 PROCEDURE = Table((
-    Field("id", Int(0, 32767), "the procedure's ID (the seed's Proc_ID), unique in the set", required=True),
+    Field("id", Int(0, 32767), "the procedure's ID (the Logosol manual's Proc_ID), unique in the set", required=True),
     Field("name", Str(), "the procedure's name", required=True),
     Field("enabled", Bool(), "FALSE: checked and compiled, never run", default=True),
     Field("mode", Int(0, 3), "0 every interval ms, 1 at program start, 2 after a successful end, 3 on error or stop",
@@ -154,7 +154,7 @@ class SequenceRef:
 
 @dataclass(frozen=True)
 class ProcedureDef:
-    """One [[procedures]] entry: the seed's fields, its body file and where it was written. slot = file order, 1.."""
+    """One [[procedures]] entry: the manual's fields, its body file and where it was written. slot = file order, 1.."""
 
     slot: int
     id: int

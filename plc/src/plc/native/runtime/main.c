@@ -142,15 +142,18 @@ const char *role_name(client_role_t role)
     return role == ROLE_READ ? "read" : role == ROLE_HOST ? "host" : "engineer";
 }
 
-static int add_allow(rt_options_t *o, const char *text)
+/* One --allow list: ADDR[/BITS][=ROLE] entries, comma-separated.  0, or -1 with the reason in err. */
+static int add_allow(rt_options_t *o, const char *text, char *err, size_t err_size)
 {
     char buf[64];
     const char *p = text;
 
     while (*p) {
         size_t n = strcspn(p, ",");
-        if (n == 0 || n >= sizeof buf)
+        if (n == 0 || n >= sizeof buf) {
+            snprintf(err, err_size, "an empty or over-long entry in '%s'", text);
             return -1;
+        }
         memcpy(buf, p, n);
         buf[n] = 0;
         p += n + (p[n] == ',');
@@ -163,26 +166,40 @@ static int add_allow(rt_options_t *o, const char *text)
                 role = ROLE_READ;
             else if (strcmp(eq + 1, "host") == 0)
                 role = ROLE_HOST;
-            else if (strcmp(eq + 1, "engineer") != 0)
+            else if (strcmp(eq + 1, "engineer") != 0) {
+                snprintf(err, err_size, "'%s' is not a role (read, host or engineer)", eq + 1);
                 return -1;
+            }
         }
         long bits = 32;
         char *slash = strchr(buf, '/');
         if (slash) {
             *slash = 0;
-            if (!parse_long(slash + 1, 0, 32, &bits))
+            if (!parse_long(slash + 1, 0, 32, &bits)) {
+                snprintf(err, err_size, "'%s' is not a prefix length 0..32", slash + 1);
                 return -1;
+            }
         }
         struct in_addr ia;
-        if (inet_pton(AF_INET, buf, &ia) != 1 || o->n_allow >= RT_MAX_ALLOW)
+        if (inet_pton(AF_INET, buf, &ia) != 1) {
+            snprintf(err, err_size, "'%s' is not an IPv4 address", buf);
             return -1;
+        }
+        if (o->n_allow >= RT_MAX_ALLOW) {
+            snprintf(err, err_size, "more than %d networks", RT_MAX_ALLOW);
+            return -1;
+        }
         uint32_t mask = bits == 0 ? 0 : 0xffffffffu << (32 - bits);
         o->allow[o->n_allow].mask = mask;
         o->allow[o->n_allow].addr = ntohl(ia.s_addr) & mask;
         o->allow[o->n_allow].role = role;
         for (int i = 0; i < o->n_allow; i++)     /* one network, two roles: which one would be meant? */
-            if (o->allow[i].addr == o->allow[o->n_allow].addr && o->allow[i].mask == mask && o->allow[i].role != role)
+            if (o->allow[i].addr == o->allow[o->n_allow].addr && o->allow[i].mask == mask
+                && o->allow[i].role != role) {
+                snprintf(err, err_size, "%s/%ld is given two roles (%s and %s)", buf, bits,
+                         role_name(o->allow[i].role), role_name(role));
                 return -1;
+            }
         o->n_allow++;
     }
     return 0;
@@ -350,11 +367,12 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
                 return rc;
             o->have_retain_registers = strcmp(optarg, "none") != 0;
             break;
-        case OPT_ALLOW:
-            if (add_allow(o, optarg) != 0)
-                return usage_error("--allow: '%s' is not a list of ADDR[/BITS][=read|host|engineer] (at most 32 "
-                                   "entries, one role per network)", optarg);
+        case OPT_ALLOW: {
+            char why[160];
+            if (add_allow(o, optarg, why, sizeof why) != 0)
+                return usage_error("--allow: %s (expected ADDR[/BITS][=read|host|engineer], ...)", why);
             break;
+        }
         case OPT_MAX_CLIENTS:
             if (!parse_long(optarg, 1, 256, &v))
                 return usage_error("--max-clients: '%s' is not a number 1..256", optarg);
