@@ -82,6 +82,8 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
     "time-inexact": (prog(OK, "t := t + T#4ms;"), None),
     "time-syntax": (prog(OK, "t := T#30m500ms;"), None),
     "time-unit": (prog(OK, "t := T#5us;"), None),
+    "unary-chain": (prog(OK, "x := - -x;"), None),
+    "unary-plus": (prog(OK, "x := 2 * +x;"), None),
     "wstring": (prog("VAR s : STRING; END_VAR", 's := "wide";'), None),
     "empty-body": (prog(OK, "IF b THEN\nEND_IF;"), None),
     "empty-statement": (prog(OK, "x := 1;;"), None),
@@ -198,3 +200,21 @@ def test_a_negative_time_written_as_a_subtraction_from_zero_is_portable_everywhe
     hints = {d.hint for d in portability_warnings(prog(OK, "t := T#-20ms;"), "openplc-v4")}
     assert hints == {"write T#0s - T#20ms: MATIEC, OpenPLC's C and STruC++ all take it (-T#20ms does not compile "
                      "in OpenPLC v3)"}
+
+
+@pytest.mark.parametrize("expr, rules", [
+    ("+x", {"unary-plus"}), ("+(5)", {"unary-plus"}), ("+ -5", {"unary-plus"}), ("+-x", {"unary-plus"}),
+    ("-+x", {"unary-chain", "unary-plus"}), ("- -x", {"unary-chain"}),
+    ("+5", set()), ("+ 5", set()), ("- +5", set()), ("- -5", set()), ("-(-x)", set()), ("-(+5)", set()),
+    ("x - -x", set()), ("x * -5", set()), ("-x * 2", set()),
+])
+def test_unary_operators_warn_exactly_where_iec2c_refuses_them(expr, rules):
+    """Each expression was given to iec2c (OpenPLC_v3's MATIEC) in `x := <expr>;`: it refuses the ones with a
+    rule, and compiles the others."""
+    found = portability_warnings(prog(OK, f"x := {expr};"))
+    assert {d.code for d in found} == {portability.rule_code(r) for r in rules}, [d.message for d in found]
+
+
+def test_not_directly_before_not_warns_and_in_parentheses_does_not():
+    assert [d.code for d in portability_warnings(prog(OK, "b := NOT NOT b;"))] == [portability.rule_code("unary-chain")]
+    assert portability_warnings(prog(OK, "b := NOT (NOT b);")) == []

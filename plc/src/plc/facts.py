@@ -79,6 +79,10 @@ RULES: dict[str, Rule] = {
                         "after the first stays in range (h < 24, m and s < 60, ms < 1000)", "write {spelling}"),
     "time-unit": Rule("'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
                       "write fractions of ms, e.g. T#1.5ms"),
+    "unary-chain": Rule("'{op}' directly before another '{inner}' is a syntax error in MATIEC",
+                        "put the inner operation in parentheses: {op} ({inner} x)"),
+    "unary-plus": Rule("a unary '+' other than the sign of a number is a syntax error in MATIEC",
+                       "leave the '+' out"),
     "wstring": Rule("double-quoted WSTRING literals are not supported by OpenPLC"),
     # found by the portability pass
     "empty-body": Rule("no statement in {where}: MATIEC rejects an empty statement list",

@@ -753,8 +753,21 @@ class Parser:
                 operand.negated = True
                 return operand
             self.operators += 1
+            self.unary_shape(t, op, operand, parenthesized=call_form)
             return A.Unary(t.pos, op, operand, call_form=call_form and op == "NOT")
         return self.power()
+
+    def unary_shape(self, t, op: str, operand: A.Expr, parenthesized: bool) -> None:
+        """MATIEC's grammar signs a number (`+5`, `- 5`) and puts `-` or NOT before a primary: `+y`, `+(5)` and an
+        operator directly before another (`- -y`, `NOT NOT b`, `-+y`) are its syntax errors; `-(-y)` and `- -5`
+        (the signed number -5) are not (measured with iec2c)."""
+        def signed_number(e: A.Expr) -> bool:
+            return isinstance(e, (A.IntLit, A.RealLit)) and e.prefix is None
+        if op == "+" and (parenthesized or not signed_number(operand) or operand.negated):
+            self.facts.append(fact("unary-plus", t.pos, text=t.text))
+        elif op != "+" and not parenthesized and isinstance(operand, A.Unary) and not (
+                operand.op == "+" and signed_number(operand.operand) and not operand.operand.negated):
+            self.facts.append(fact("unary-chain", t.pos, op=op, inner=operand.op))
 
     def power(self) -> A.Expr:
         return self.postfix(self.primary())
