@@ -61,3 +61,35 @@ def test_the_spindle_guard_watches_the_plcs_inhibit():
                  "net atc-tool-in-spindle => atc-spindle-guard.tool"):
         assert re.search(rf"(?m)^{re.escape(line)}$", hal), line
     assert (CONFIG / "bin" / "atc-spindle-guard").stat().st_mode & 0o111
+
+
+def test_the_program_state_reaches_the_plcs_procedure_coils():
+    """bin/atc-program-state drives the three program coils (their signals are the generated HAL file's, from the
+    map's hal names), reads the abort lines and the PLC's fault, and finds the sequence set the PLC is built from;
+    ON_ABORT_COMMAND (the abort toggle) stays when the remap block is removed."""
+    hal = (CONFIG / "atc-sim.hal").read_text()
+    with open(REPO / "modbus_map" / "map.toml", "rb") as f:
+        signals = {s["name"]: s for s in tomllib.load(f)["signal"]}
+    lines = [f"net {signals['ProgramRunning']['hal']} atc-program-state.running",
+             f"net {signals['ProgramEndedOk']['hal']} atc-program-state.ended-ok",
+             f"net {signals['ProgramStopped']['hal']} atc-program-state.stopped",
+             "net atc-emc-abort => atc-program-state.emc-abort",
+             "net atc-program-abort-toggle motion.digital-out-02 => atc-program-state.abort-toggle",
+             f"net {signals['FaultReason']['hal']} => atc-program-state.fault-reason",
+             f"net {signals['ProcFaultId']['hal']} => atc-program-state.proc-fault-id"]
+    for line in lines:
+        assert re.search(rf"(?m)^{re.escape(line)}$", hal), line
+    m = re.search(r"(?m)^loadusr -W atc-program-state --sequences (\S+)$", hal)
+    assert m and (CONFIG / m.group(1)).resolve() == REPO / "configs" / "sequences" / "sequences.toml"
+    assert (CONFIG / "bin" / "atc-program-state").stat().st_mode & 0o111
+    generated = (CONFIG / "atc_iov2.hal").read_text()
+    assert re.search(r"(?m)^net atc-emc-abort iocontrol\.0\.emc-abort\b", generated)
+    for name in ("ProgramRunning", "ProgramEndedOk", "ProgramStopped"):
+        assert re.search(rf"(?m)^net {signals[name]['hal']} mb2hal\.atc-bits-out\.{name}\.bit$", generated), name
+    ini = (CONFIG / "atc-sim.ini").read_text()
+    assert ini_values("RS274NGC", "ON_ABORT_COMMAND") == ["O <atc_on_abort> call"]
+    remap = ini[ini.index("# ---- LinuxCNC executes the moves"):ini.index("# ---- end of the remap")]
+    assert "ON_ABORT_COMMAND" not in remap
+    ngc = (CONFIG / "nc_subs" / "atc_on_abort.ngc").read_text()
+    assert "M64 P2" in ngc and "M65 P2" in ngc and "#<_hal[motion.digital-out-02]>" in ngc
+    assert int(ini_values("EMCMOT", "NUM_DIO")[0]) > 2
