@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from plc import buildcache
 from plc.codegen import generate, generate_units
 from plc.diagnostics import Diagnostics
@@ -250,3 +252,31 @@ def test_the_size_limit_comes_from_plc_cache_max_mb(monkeypatch):
     assert buildcache.max_bytes() == 3 * 1024 * 1024
     monkeypatch.setenv("PLC_CACHE_MAX_MB", "lots")
     assert buildcache.max_bytes() == buildcache.DEFAULT_MAX_MB * 1024 * 1024
+
+
+def test_a_toml_file_read_before_is_loaded_from_the_cache_with_its_places(tmp_path):
+    """tomlconf.parse through the cache in use (the project's checks before plc test read a dozen TOML files):
+    the same values and places as a fresh parse, a changed text or name parsed again, invalid TOML refused each
+    time and never stored."""
+    from plc import tomlconf
+    text = '[modbus]\nport = 5020\n\n[[io.device]]\nname = "rack"\ncoils = [{ at = 1 }, { at = 2 }]\n'
+    want = tomlconf.parse(text, "run.toml")
+    before = buildcache.active()
+    try:
+        cache = buildcache.use(tmp_path / "cache")
+        first = tomlconf.parse(text, "run.toml")
+        again = tomlconf.parse(text, "run.toml")
+        assert (cache.misses, cache.hits) == (1, 1)
+        for doc in (first, again):
+            assert doc.data == want.data and doc.places == want.places
+            assert doc.pos(("io", "device", 0, "coils", 1)) == want.pos(("io", "device", 0, "coils", 1))
+        other = tomlconf.parse(text, "other.toml")                  # positions name the file: another entry
+        assert cache.misses == 2 and other.pos(("modbus", "port")).file == "other.toml"
+        tomlconf.parse(text.replace("5020", "502"), "run.toml")
+        assert cache.misses == 3
+        for _ in range(2):
+            with pytest.raises(tomlconf.TomlError, match="invalid TOML"):
+                tomlconf.parse("[modbus\n", "run.toml")
+        assert cache.misses == 5 and cache.hits == 1
+    finally:
+        buildcache.use(before.root if before is not None else None)

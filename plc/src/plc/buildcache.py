@@ -6,6 +6,8 @@ directory PLC_CACHE_DIR names (one cache for many checkouts: the entries are key
 
 - A parsed file (parser.parse) is keyed by its name, its text and the compiler's own sources; it stores the
   tree and the diagnostics the lexer and the parser reported, which a hit reports again.
+- A TOML file read through tomlconf (the project's checks before plc test and plc run read a dozen) is keyed the
+  same way by its name, its text and the sources of tomlconf; it stores the values and the places of the entries.
 - An object file (compile_units) is keyed by the C text of its translation unit (self-contained: every
   declaration it uses is in its text), the headers it includes, the C compiler's identity and the flags.
 
@@ -35,6 +37,7 @@ from .diagnostics import Diagnostics
 
 CACHE_DIR = Path("build") / "plc-cache"
 MAGIC = b"plc-cache 1\n"
+KINDS = ("parse", "toml", "obj")      # the directories of entries, each an entry kind
 DEFAULT_MAX_MB = 256
 
 _active: Cache | None = None
@@ -48,28 +51,33 @@ def sha256(*parts: str | bytes) -> str:
     return h.hexdigest()
 
 
-_toolchain: str | None = None
+_digests: dict[str, str] = {}
 
 
-def toolchain_digest() -> str:
-    """A hash of the Python version and the sources of the parser and every module of the package it imports,
-    however indirectly (parser_sources): a changed parser never reuses a parse result of an older one, and an
-    edit elsewhere in the toolchain keeps them."""
-    global _toolchain
-    if _toolchain is None:
+def toolchain_digest(start: str = "parser.py") -> str:
+    """A hash of the Python version and the sources of the module `start` (default the parser) and every module of
+    the package it imports, however indirectly (module_sources): a changed parser never reuses a parse result of
+    an older one, and an edit elsewhere in the toolchain keeps them."""
+    if start not in _digests:
         package = Path(__file__).resolve().parent
         h = hashlib.sha256(sys.version.encode())
-        for f in parser_sources():
+        for f in module_sources(start):
             h.update(f.relative_to(package).as_posix().encode() + b"\0")
             h.update(f.read_bytes())
-        _toolchain = h.hexdigest()
-    return _toolchain
+        _digests[start] = h.hexdigest()
+    return _digests[start]
 
 
 def parser_sources() -> list[Path]:
     """parser.py and every module of the package it imports (relative imports, followed transitively), sorted."""
+    return module_sources("parser.py")
+
+
+def module_sources(start: str) -> list[Path]:
+    """The module `start` of this package and every module of the package it imports (relative imports,
+    followed transitively), sorted."""
     package = Path(__file__).resolve().parent
-    todo, seen = [package / "parser.py"], set()
+    todo, seen = [package / start], set()
     while todo:
         f = todo.pop()
         if f in seen or not f.is_file():
@@ -139,7 +147,7 @@ class Cache:
         if self.misses == 0:
             return 0
         files = []
-        for kind in ("parse", "obj"):
+        for kind in KINDS:
             for dirpath, _dirs, names in os.walk(self.root / kind):
                 for name in names:
                     path = os.path.join(dirpath, name)
@@ -194,6 +202,26 @@ class Cache:
             return tree
         self.store("parse", key, payload)
         return tree
+
+    def value(self, kind: str, key: str, compute):
+        """compute() through the cache: a value stored under `key` (pickled) is loaded, else computed and stored.
+        `key` must name everything the value comes from (the text read, the sources of the code computing it)."""
+        payload = self.load(kind, key)
+        if payload is not None:
+            try:
+                value = pickle.loads(payload)
+            except Exception:       # an entry that does not load is a miss, whatever broke it
+                pass
+            else:
+                self.hits += 1
+                return value
+        self.misses += 1
+        value = compute()
+        try:
+            self.store(kind, key, pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+        except (pickle.PicklingError, RecursionError, TypeError, AttributeError):
+            pass
+        return value
 
 
 def project_cache(root: Path) -> Path:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import ast as A
-from . import buildcache, plcopen, sema
+from . import buildcache, sema
 from .codegen import generate as gen_c
 from .diagnostics import Diagnostics, SourceSet
 from .parser import parse
@@ -51,7 +51,10 @@ class CompileResult:
 
 def is_source(path: Path) -> bool:
     """A source file the compiler reads: ST, or a PLCopen XML project."""
-    return path.suffix.lower() == ".st" or plcopen.looks_like_plcopen(path)
+    if path.suffix.lower() == ".st":
+        return True
+    from . import plcopen      # the XML front end (and lxml) is imported only for a project that has XML
+    return plcopen.looks_like_plcopen(path)
 
 
 def collect_files(paths: list[str | os.PathLike]) -> list[Path]:
@@ -114,6 +117,7 @@ def load_user_file(path: Path, diags: Diagnostics, sources: SourceSet):
         return name, read_source(path), None
     data = read_bytes(path)
     sources.add(name, decode(data))
+    from . import plcopen
     tr = plcopen.translate(name, data, diags)
     if tr is None:
         return name, None, None

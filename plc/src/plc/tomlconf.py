@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from . import buildcache
 from .diagnostics import GCC, Diagnostic, Layout, Pos
 
 KeyPath = tuple  # ("io", "device", 0, "coils", 1): table names, keys and array indexes
@@ -141,7 +142,18 @@ _AT = re.compile(r"\s*\(at line (\d+), column (\d+)\)|\s*\(at end of document\)"
 def parse(text: str, file: str, *, layout: Layout = GCC, show_source: bool = False,
           unplaced: tuple[int, int] = (1, 1), anchor: str = "start") -> Document:
     """The document of `text` (shown as `file` in diagnostics); TomlError when it is not valid TOML, positioned
-    where tomllib stopped (`invalid TOML: ...`)."""
+    where tomllib stopped (`invalid TOML: ...`).  With a build cache in use (buildcache.use: plc test, plc build,
+    plc run), a text read before under the same name is loaded from it (values and places)."""
+    cache = buildcache.active()
+    if cache is None:
+        data, places = _parse(text, file, layout, show_source)
+    else:
+        key = buildcache.sha256("toml", buildcache.toolchain_digest("tomlconf.py"), file, text)
+        data, places = cache.value("toml", key, lambda: _parse(text, file, layout, show_source))
+    return Document(file, text, data, places, layout, show_source, unplaced, anchor)
+
+
+def _parse(text: str, file: str, layout: Layout, show_source: bool) -> tuple[dict, dict[KeyPath, Place]]:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -156,7 +168,7 @@ def parse(text: str, file: str, *, layout: Layout = GCC, show_source: bool = Fal
         raise TomlError(Diagnostic("error", Pos(file, line, col), f"invalid TOML: {_AT.sub('', str(exc))}",
                                    source_line=source, layout=layout)) from None
     _tree, places = scan(text, file)
-    return Document(file, text, data, places, layout, show_source, unplaced, anchor)
+    return data, places
 
 
 def read(path: Path, label: str | None = None, **style: Any) -> Document:
