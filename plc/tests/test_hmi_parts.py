@@ -3,6 +3,7 @@ description carries every map signal, state name and reason text, `plc status` a
 politely, and the page's HTTP guards refuse what they must (no PLC needed for these)."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from atc.hmi import mapinfo
@@ -191,9 +192,10 @@ def test_the_page_knows_the_inputs_the_simulation_leaves_alone_its_fault_lines_a
     assert hub.plc_time({"ScanCount": 2}) == {"plc_scan": 65538, "plc_s": 262.152}, "ScanCount wrapped since"
 
 
-def test_the_page_lists_the_shipped_procedures_and_switches_them_through_procdisabled():
+def test_the_page_lists_the_shipped_procedures_and_switches_them_through_procdisabled(tmp_path):
     # issue 31: the page's procedures come from the sequence set; its switch writes the run-time mask
-    # ProcDisabled (bit slot-1) through the "procedure" command, and refuses what it cannot do
+    # ProcDisabled (bit slot-1) through the "procedure" command, audited with the page's client, and refuses what
+    # it cannot do
     from host_fake_plc import Addr, FakePlc
     from atc.hmi import server
     procs, texts = server.procedures_of(REPO)
@@ -207,17 +209,30 @@ def test_the_page_lists_the_shipped_procedures_and_switches_them_through_procdis
     addr = Addr(coil={s.name: s.address for s in info.rmap.signals if s.table == "coil"},
                 reg={s.name: s.address for s in info.rmap.signals if s.table == "holding_register"})
     with FakePlc(addr) as fake:
-        hub = server.Hub(server.Options(plc_port=fake.port), info, "token", 6, procedures=procs)
-        answer = server.run_command(hub, "procedure", {"slot": 2, "enabled": False})
+        hub = server.Hub(server.Options(plc_port=fake.port, token_file=tmp_path / "monitor.token"), info, "token",
+                         6, procedures=procs)
+        answer = server.run_command(hub, "procedure", {"slot": 2, "enabled": False}, "192.168.1.7")
         assert answer == {"ok": True, "text": "procedure 3 (alarm light) disabled"}
         assert fake.r("ProcDisabled") == 2
-        assert server.run_command(hub, "procedure", {"slot": 1, "enabled": False})["ok"]
+        assert server.run_command(hub, "procedure", {"slot": 1, "enabled": False}, "192.168.1.7")["ok"]
         assert fake.r("ProcDisabled") == 3
-        assert server.run_command(hub, "procedure", {"slot": 2, "enabled": True})["ok"]
+        assert server.run_command(hub, "procedure", {"slot": 2, "enabled": True}, "10.0.0.3")["ok"]
         assert fake.r("ProcDisabled") == 1
+        audit = (tmp_path / "audit.log").read_text().splitlines()
+        assert [line.split(" ", 3)[3] for line in audit] == [
+            "page 192.168.1.7 procedure 3 (alarm light) slot 2 disable -> done (ProcDisabled 2)",
+            "page 192.168.1.7 procedure 0 (lube) slot 1 disable -> done (ProcDisabled 3)",
+            "page 10.0.0.3 procedure 3 (alarm light) slot 2 enable -> done (ProcDisabled 1)"]
+        assert all(re.match(r"\d{4}-\d\d-\d\dT[\d:.]+Z uid=\d+ pid=\d+ ", line) for line in audit)
         assert "no procedure 5" in server.run_command(hub, "procedure", {"slot": 5, "enabled": True})["error"]
         assert "needs" in server.run_command(hub, "procedure", {"slot": "1", "enabled": True})["error"]
         hub.procedures = shipped
         refused = server.run_command(hub, "procedure", {"slot": 1, "enabled": True})
         assert not refused["ok"] and "disabled in the sequence set" in refused["error"]
         assert fake.r("ProcDisabled") == 1, "a refused switch writes nothing"
+        assert len((tmp_path / "audit.log").read_text().splitlines()) == 3, "and logs nothing"
+        (tmp_path / "audit.log").rename(tmp_path / "audit.old")
+        (tmp_path / "audit.log").mkdir()                     # a log that cannot be appended to: no switch
+        unaudited = server.run_command(hub, "procedure", {"slot": 2, "enabled": False}, "10.0.0.3")
+        assert not unaudited["ok"] and "cannot append to the audit log" in unaudited["error"], unaudited
+        assert fake.r("ProcDisabled") == 1, "a switch the audit log cannot take is not made"

@@ -222,3 +222,33 @@ def test_the_shipped_set_enables_no_procedure(app, tmp_path):
             assert client.read_holding(reg["ProcLastId"], 1) == [0xFFFF], "none has run (-1)"
         finally:
             client.close()
+
+
+def test_the_pages_procedure_switch_survives_a_restart(app_procs_enabled, tmp_path):
+    # issue 31: ProcDisabled (the page's switches) is a retained register: `plc run` passes it in
+    # --retain-registers (from the map), and the PLC restarted on the same retained file still has the procedure
+    # disabled (ProcEnabled without its bit), as it keeps the pocket table
+    binary, events, info, sim_flag = app_procs_enabled
+    reg = {s.name: s.address for s in info.rmap.signals if s.table == "holding_register"}
+    retained = runtime_setup(REPO / "modbus_map" / "map.toml", tmp_path).retain_registers
+    assert any(int(r.split("-")[0]) <= reg["ProcDisabled"] <= int(r.split("-")[-1]) for r in retained), retained
+    args = ("--no-rt", "--sim-flag", sim_flag, "--events", str(events), "--writable-registers", "512-8191",
+            "--retain", str(tmp_path / "plc.retain"), "--retain-registers", ",".join(retained))
+    for start in (1, 2):
+        with h.Runtime(binary, *args) as rt:
+            rt.wait_for(r"changer: tool 0 in the spindle, state AtcIdle")
+            client = ModbusClient("127.0.0.1", rt.port, timeout=5 * h.SLOW)
+            client.connect()
+            try:
+                if start == 1:
+                    h.wait_until(lambda c=client: c.read_holding(reg["ProcEnabled"], 1) == [3], 5 * h.SLOW,
+                                 "both procedures enabled (built enabled, nothing disabled)")
+                    client.write_register(reg["ProcDisabled"], 2)
+                    h.wait_until(lambda c=client: c.read_holding(reg["ProcEnabled"], 1) == [1], 5 * h.SLOW,
+                                 "the alarm light (slot 2) disabled")
+                else:
+                    assert client.read_holding(reg["ProcDisabled"], 1) == [2], "the switch was not retained"
+                    h.wait_until(lambda c=client: c.read_holding(reg["ProcEnabled"], 1) == [1], 5 * h.SLOW,
+                                 "the alarm light still disabled after the restart")
+            finally:
+                client.close()

@@ -223,17 +223,31 @@ class Table:
             time.sleep(0.005)
 
     def log(self, what: str, result: str) -> None:
-        now = datetime.datetime.now(datetime.timezone.utc)
-        line = (f"{now:%Y-%m-%dT%H:%M:%S}.{now.microsecond // 1000:03d}Z uid={os.getuid()} pid={os.getpid()} "
-                f"tools {what} -> {result}\n")
-        try:
-            fd = os.open(self.audit, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
-            try:
-                os.write(fd, line.encode())
-            finally:
-                os.close(fd)
-        except OSError as exc:
-            raise ToolsError(f"{self.audit}: cannot append to the audit log: {exc}") from None
+        append_audit(self.audit, f"tools {what}", result)
+
+
+def open_audit(path: Path) -> int:
+    """The audit log opened for appending (created 0600), or ToolsError: a change that cannot be audited is not
+    made."""
+    try:
+        return os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+    except OSError as exc:
+        raise ToolsError(f"{path}: cannot append to the audit log: {exc}") from None
+
+
+def append_audit(path: Path, what: str, result: str, fd: int | None = None) -> None:
+    """One line in the audit log beside the monitor's token, as the runtime logs a monitor write: UTC time, the
+    writer's uid and pid, what was changed and its outcome. `fd`: the log opened by open_audit (closed here)."""
+    now = datetime.datetime.now(datetime.timezone.utc)
+    line = (f"{now:%Y-%m-%dT%H:%M:%S}.{now.microsecond // 1000:03d}Z uid={os.getuid()} pid={os.getpid()} "
+            f"{what} -> {result}\n")
+    fd = open_audit(path) if fd is None else fd
+    try:
+        os.write(fd, line.encode())
+    except OSError as exc:
+        raise ToolsError(f"{path}: cannot append to the audit log: {exc}") from None
+    finally:
+        os.close(fd)
 
 
 def describe(r: Row) -> str:

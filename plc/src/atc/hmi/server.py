@@ -44,7 +44,7 @@ from ..runsetup import SIM_FLAG_SIGNAL
 from ..seq.assemble import check_set
 from ..seq.diagnostics import Diagnostics as SeqDiagnostics
 from ..seq.stgen import _message_numbers
-from ..tools import ANSWERS, EDIT_RESET, Table, ToolsError
+from ..tools import ANSWERS, EDIT_RESET, Table, ToolsError, append_audit, open_audit
 from . import mapinfo
 
 STATIC = Path(__file__).parent / "static"
@@ -343,8 +343,9 @@ async def broadcast(hub: Hub) -> None:
 
 # ---------------------------------------------------------------- commands
 
-def run_command(hub: Hub, cmd: str, arg) -> dict:
-    """One operator command as requests on the map; the PLC's answer as a sentence."""
+def run_command(hub: Hub, cmd: str, arg, peer: str = "?") -> dict:
+    """One operator command as requests on the map; the PLC's answer as a sentence. `peer`: the page's client
+    address, named in the audit log."""
     rmap = hub.info.rmap
     client = ModbusClient(hub.opts.plc_host, hub.opts.plc_port, unit=rmap.linuxcnc.slave_id)
     client.connect()
@@ -356,7 +357,7 @@ def run_command(hub: Hub, cmd: str, arg) -> dict:
         if cmd == "tool-reset":
             return tool_reset(hub, session.tags, arg)
         if cmd == "procedure":
-            return procedure_switch(hub, session.tags, arg)
+            return procedure_switch(hub, session.tags, arg, peer)
         if cmd == "step" and arg not in (1, -1):
             return {"ok": False, "error": "step is +1 or -1"}
         if cmd in ("goto", "confirm") and (not isinstance(arg, int) or isinstance(arg, bool)):
@@ -394,8 +395,7 @@ def tool_reset(hub: Hub, tags, tool) -> dict:
         return {"ok": False, "error": "tool-reset needs a tool number"}
     if not tags.has("ToolEditRequest"):
         return {"ok": False, "error": "this PLC's register map has no tool table"}
-    token_dir = hub.opts.token_file.parent if hub.opts.token_file else Path("var")
-    table = Table(tags, token_dir / runtime.DEFAULT_AUDIT_FILE.name)
+    table = Table(tags, audit_file(hub))
     try:
         _, rows, _ = table.rows()
         row = next((r for r in rows if r.tool == tool), None)
@@ -410,9 +410,17 @@ def tool_reset(hub: Hub, tags, tool) -> dict:
     return {"ok": True, "text": f"T{tool}: time used reset to 0"}
 
 
-def procedure_switch(hub: Hub, tags, arg) -> dict:
-    """Enable or disable a user procedure at run time: its bit in ProcDisabled (0 = as compiled). A procedure the
-    sequence set compiles disabled cannot be enabled here; one that runs when disabled runs to its end."""
+def audit_file(hub: Hub) -> Path:
+    """The audit log beside the token file, where the runtime logs monitor writes and `plc tools` its edits."""
+    token_dir = hub.opts.token_file.parent if hub.opts.token_file else Path("var")
+    return token_dir / runtime.DEFAULT_AUDIT_FILE.name
+
+
+def procedure_switch(hub: Hub, tags, arg, peer: str = "?") -> dict:
+    """Enable or disable a user procedure at run time: its bit in ProcDisabled (0 = as compiled, retained by the
+    PLC). A procedure the sequence set compiles disabled cannot be enabled here; one that runs when disabled runs
+    to its end. Audited: one line per switch in the audit log with the page's client address; a switch the log
+    cannot take is not made."""
     slot = arg.get("slot") if isinstance(arg, dict) else None
     enable = arg.get("enabled") if isinstance(arg, dict) else None
     if not isinstance(slot, int) or isinstance(slot, bool) or not 1 <= slot <= 16 or not isinstance(enable, bool):
@@ -425,11 +433,26 @@ def procedure_switch(hub: Hub, tags, arg) -> dict:
     if enable and not proc["enabled"]:
         return {"ok": False, "error": f"procedure {proc['id']} ({proc['name']}) is disabled in the sequence set "
                                       "(enabled = false): the page cannot enable it"}
+    what = (f"page {peer} procedure {proc['id']} ({proc['name']}) slot {slot} "
+            f"{'enable' if enable else 'disable'}")
+    try:
+        fd = open_audit(audit_file(hub))
+    except ToolsError as exc:
+        return {"ok": False, "error": f"not switched: {exc}"}
     bit = 1 << (slot - 1)
-    mask = int(tags.get("ProcDisabled"))
-    mask = mask & ~bit if enable else mask | bit
-    tags.write(ProcDisabled=mask)
-    if int(tags.get("ProcDisabled")) != mask:
+    try:
+        mask = int(tags.get("ProcDisabled"))
+        mask = mask & ~bit if enable else mask | bit
+        tags.write(ProcDisabled=mask)
+        taken = int(tags.get("ProcDisabled")) == mask
+    except BaseException:
+        append_audit(audit_file(hub), what, "no answer", fd)
+        raise
+    try:
+        append_audit(audit_file(hub), what, f"done (ProcDisabled {mask})" if taken else "not taken", fd)
+    except ToolsError as exc:
+        return {"ok": False, "error": f"switched, but {exc}"}
+    if not taken:
         return {"ok": False, "error": "the PLC did not take the new ProcDisabled"}
     return {"ok": True, "text": f"procedure {proc['id']} ({proc['name']}) {'enabled' if enable else 'disabled'}"}
 
@@ -532,7 +555,8 @@ def make_app(hub: Hub):
         async with command_lock:
             loop = asyncio.get_running_loop()
             try:
-                result = await loop.run_in_executor(None, run_command, hub, data["cmd"], data.get("arg"))
+                result = await loop.run_in_executor(None, run_command, hub, data["cmd"], data.get("arg"),
+                                                    request.remote or "?")
             except (LinkError, ModbusException) as exc:
                 result = {"ok": False, "error": f"the PLC did not take the request: {exc}"}
         return web.json_response(result, status=200 if result.get("ok") else 409)
