@@ -204,9 +204,13 @@ def _application_setup(sources: list[Path], work: Path) -> RunSetup:
 def load_run_config(config: Path | None) -> runtime.RunConfig:
     """The run configuration (the built-in defaults without one), its mistakes as a DeployError."""
     try:
-        return runtime.load_config(config) if config else runtime.RunConfig()
+        cfg = runtime.load_config(config) if config else runtime.RunConfig()
     except runtime.ConfigError as exc:
         raise DeployError(str(exc)) from None
+    if cfg.tls_cert is not None:         # its files would stay in the checkout, outside the release: refused
+        raise DeployError(f"{config}: [modbus.tls]: a release does not carry the TLS certificate, key and CA yet "
+                          "(README, \"Hardening the Modbus front end\"); deploy without [modbus.tls]")
+    return cfg
 
 
 def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: runtime.RunConfig, name: str,

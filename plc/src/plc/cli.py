@@ -194,7 +194,10 @@ def parser() -> argparse.ArgumentParser:
                        "Compile the ST program (default: the project's st_src/) and run it as a soft-PLC serving "
                        "Modbus/TCP with OpenPLC's address map. Ctrl-C stops it: outputs go safe, RETAIN data "
                        "is saved. The run configuration is --config, else the project's (its machine's, or "
-                       "configs/runtime.toml) when the sources belong to the project; the one used is printed.")
+                       "configs/runtime.toml) when the sources belong to the project; the one used is printed. "
+                       "Modbus/TCP Security (a TLS listener beside the plain one, port 802 by default, each client's "
+                       "role from its certificate): [modbus.tls] cert, key, ca, port, bind in the run configuration "
+                       "(plc tls makes the certificates; README, \"Hardening the Modbus front end\").")
     p.add_argument("paths", nargs="*", metavar="PATH", help="ST files or directories (default: st_src/)")
     runtime.add_run_arguments(p)
     add_view_options(p)
@@ -225,6 +228,8 @@ TOOLCHAIN_DELEGATED = {
     "import": ("PLCopen XML or an Editor v4 folder to ST: plc import plcopen|openplc-editor PATH --out DIR",
                "plc.plcopen.importer"),
     "export": ("ST project to PLCopen XML: plc export plcopen --out FILE.xml", "plc.plcopen.exporter"),
+    "tls": ("certificates of Modbus/TCP Security: a CA, the runtime's, clients' with a role (plc tls --help)",
+            "plc.tlscerts"),
 }
 
 

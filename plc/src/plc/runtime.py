@@ -26,6 +26,13 @@ Configuration file (every key optional; paths relative to the file's directory):
     address = "192.168.1.20"                  # the longest prefix holding a client's address decides its role
     role = "host"
 
+    [modbus.tls]                    # Modbus/TCP Security (MBAPS): a TLS listener beside the plain one
+    cert = "tls/server.pem"         # the runtime's certificate, its key, the CA of the clients' certificates
+    key = "tls/server.key"          #   (PEM; `plc tls` makes them); the role is the client certificate's
+    ca = "tls/ca.pem"               #   role extension; --allow and [[modbus.client]] are the plain listener's
+    port = 802                      # the default (below 1024: root or CAP_NET_BIND_SERVICE); 0 = any free port
+    bind = "0.0.0.0"                # default: [modbus] bind (keep that one 127.0.0.1 for mb2hal)
+
     [io]
     layer = "sim"                   # "sim", "none" or "modbus"
     # [[io.device]] tables: the remote I/O devices of layer "modbus" (see plc/src/plc/io_config.py)
@@ -54,6 +61,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import errno
 import hashlib
 import ipaddress
 import os
@@ -80,6 +88,7 @@ BINARY_NAME = "plc-runtime"
 COILS = 800                 # %QX0.0 .. %QX99.7
 HOLDING_REGISTERS = 8192    # %QW, %MW, %MD, %ML
 DEFAULT_PORT = 5020
+DEFAULT_TLS_PORT = 802      # Modbus/TCP Security's registered port
 DEFAULT_RETAIN_FILE = Path("var") / "plc.retain"
 DEFAULT_BUILD_DIR = Path("build") / "runtime"
 DEFAULT_MONITOR_SOCKET = Path("var") / "plc.monitor"
@@ -94,7 +103,7 @@ SANITIZE = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefine
 IO_LAYERS = ("sim", "none", "modbus")
 MAX_CPU = 1023              # CPU_SETSIZE - 1 of glibc: the highest CPU number --cpu accepts
 
-APT_HINT = "install the Debian packages gcc, make, pkg-config and libmodbus-dev"
+APT_HINT = "install the Debian packages gcc, make, pkg-config, libmodbus-dev and libssl-dev"
 
 
 class RuntimeBuildError(Exception):
@@ -128,6 +137,18 @@ def _modbus_flags() -> tuple[list[str], list[str]]:
     if Path("/usr/include/modbus/modbus.h").exists():
         return ["-I/usr/include/modbus"], ["-lmodbus"]
     raise RuntimeBuildError(f"libmodbus not found: {APT_HINT}")
+
+
+def _openssl_flags() -> tuple[list[str], list[str]]:
+    """OpenSSL's compiler and linker flags (the TLS listener, modbus_server.c)."""
+    if shutil.which("pkg-config"):
+        cflags = subprocess.run(["pkg-config", "--cflags", "openssl"], capture_output=True, text=True)
+        libs = subprocess.run(["pkg-config", "--libs", "openssl"], capture_output=True, text=True)
+        if cflags.returncode == 0 and libs.returncode == 0:
+            return cflags.stdout.split(), libs.stdout.split()
+    if Path("/usr/include/openssl/ssl.h").exists():
+        return [], ["-lssl", "-lcrypto"]
+    raise RuntimeBuildError(f"OpenSSL not found: {APT_HINT}")
 
 
 def _compiler() -> str:
@@ -177,10 +198,11 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
         sources = [s for s in sources if s.name != NO_EVENTS] + [Path(observer)]
     cc = _compiler()
     modbus_cflags, modbus_libs = _modbus_flags()
+    ssl_cflags, ssl_libs = _openssl_flags()
     cppflags = ["-I" + str(RUNTIME_DIR), "-I" + str(INCLUDE_DIR)]
-    cppflags += ["-I" + str(Path(d).resolve()) for d in include_dirs] + modbus_cflags
+    cppflags += ["-I" + str(Path(d).resolve()) for d in include_dirs] + modbus_cflags + ssl_cflags
     cflags = WARNINGS + (SANITIZE if sanitize else OPTIMISE)
-    libs = modbus_libs + ["-lpthread", "-lm"]
+    libs = modbus_libs + ssl_libs + ["-lpthread", "-lm"]
 
     version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout.splitlines()[:1]
     digest = hashlib.sha256()
@@ -214,7 +236,7 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
             command = [cc, *cflags, *map(str, objects), program_o, "-o", tmp_name, *libs]
             result = subprocess.run(command, capture_output=True, text=True)
         if result.returncode != 0:
-            hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr else ""
+            hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr or "openssl/" in result.stderr else ""
             # gcc and clang name the file of each error first: "FILE:LINE:COL: error: ..."
             refused = any(line.startswith(f"{program_c}:") and ": error:" in line
                           for line in result.stderr.splitlines())
@@ -247,7 +269,7 @@ def _runtime_object(cc: str, cflags: list[str], cppflags: list[str], source: Pat
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
         os.unlink(tmp)
-        hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr else ""
+        hint = f"\nhint: {APT_HINT}" if "modbus.h" in result.stderr or "openssl/" in result.stderr else ""
         raise RuntimeBuildError(f"building the runtime ({source.name}) failed:\n{_trim(result.stderr)}{hint}",
                                 False, result.stdout + result.stderr, command)
     os.replace(tmp, obj)
@@ -287,6 +309,11 @@ class RunConfig:
     audit_file: Path | None = None                   # None: beside the retain file (audit.log)
     events_file: Path | None = None                  # set by `plc run` from the application (plc.extensions)
     sim_flag: str | None = None                      # [io] sim_flag / --sim-flag: %IXa.b held TRUE by --io sim
+    tls_cert: Path | None = None                     # [modbus.tls]: None: no TLS listener
+    tls_key: Path | None = None
+    tls_ca: Path | None = None
+    tls_port: int = DEFAULT_TLS_PORT
+    tls_bind: str | None = None                      # None: bind
 
 
 def _ranges(limit: int) -> Check:
@@ -364,7 +391,8 @@ RUN_CONFIG = {
         Field("writable_registers", _ranges(HOLDING_REGISTERS), "holding registers a client may write"),
         Field("host_coils", _ranges(COILS), "of the writable coils, those a client of role host may write"),
         Field("host_registers", _ranges(HOLDING_REGISTERS), "of the writable registers, those a host may write"),
-        Field("client", Check(lambda v: v), "[[modbus.client]]: a client address with its role"))),
+        Field("client", Check(lambda v: v), "[[modbus.client]]: a client address with its role"),
+        Field("tls", Check(lambda v: v), "[modbus.tls]: Modbus/TCP Security, a TLS listener"))),
     "io": Table((
         Field("layer", OneOf(IO_LAYERS), "the I/O layer"),
         Field("device", Check(lambda v: v), "[[io.device]]: the remote I/O of layer modbus (io_config)"),
@@ -388,7 +416,7 @@ RUN_CONFIG = {
 _FIELD_OF = {("io", "layer"): "io", ("retain", "file"): "retain_file", ("retain", "interval_ms"): "retain_interval_ms",
              ("retain", "registers"): "retain_registers", ("monitor", "enabled"): "monitor",
              ("monitor", "socket"): "monitor_socket"}
-_NOT_FIELDS = {("io", "device"), ("modbus", "client")}
+_NOT_FIELDS = {("io", "device"), ("modbus", "client"), ("modbus", "tls")}
 
 ROLES = ("read", "host", "engineer")
 MAX_ALLOW = 32              # RT_MAX_ALLOW of the runtime: allow entries and [[modbus.client]] tables together
@@ -424,6 +452,69 @@ def check_clients(doc: tomlconf.Document, entries: Any, allow: list[str]) -> lis
     return out
 
 
+TLS = Table((
+    Field("cert", FILE_NAME, "the runtime's certificate (PEM)", required=True),
+    Field("key", FILE_NAME, "the private key of cert (PEM, not encrypted)", required=True),
+    Field("ca", FILE_NAME, "the CA certificate(s) that sign the clients' certificates (PEM)", required=True),
+    Field("port", Int(0, 65535), f"the TLS port (default {DEFAULT_TLS_PORT}; 0: any free port)"),
+    Field("bind", IPV4, "IPv4 address of the TLS listener (default: [modbus] bind)")))
+
+
+def check_tls(doc: tomlconf.Document, value: Any, cfg: RunConfig, base: Path) -> None:
+    """`[modbus.tls]` into cfg: the files relative to `base` (the configuration's directory), each read as the
+    runtime will (a certificate, a key that belongs to it, CA certificates); every problem into doc at its key."""
+    path = ("modbus", "tls")
+    checked = TLS.check(doc, path, value, "[modbus.tls]")
+    files = {k: Path(os.path.normpath(base / checked[k])) for k in ("cert", "key", "ca") if k in checked}
+    cfg.tls_port = checked.get("port", DEFAULT_TLS_PORT)
+    cfg.tls_bind = checked.get("bind")
+    if "port" in checked and cfg.tls_port != 0 and cfg.tls_port == cfg.port and (cfg.tls_bind or cfg.bind) == cfg.bind:
+        doc.error(path + ("port",), f"[modbus.tls] port: {cfg.tls_port} is the plain listener's port too "
+                  "([modbus] port)")
+    for key, problem in tls_file_problems(files).items():
+        doc.error(path + (key,), f"[modbus.tls] {key}: {problem}")
+    if checked.ok:
+        cfg.tls_cert, cfg.tls_key, cfg.tls_ca = files["cert"], files["key"], files["ca"]
+
+
+def tls_file_problems(files: dict[str, Path]) -> dict[str, str]:
+    """What is wrong with the TLS files (keys cert, key, ca) as the runtime will read them: key -> problem."""
+    out: dict[str, str] = {}
+    data: dict[str, bytes] = {}
+    for key, f in files.items():
+        try:
+            data[key] = f.read_bytes()
+        except OSError as exc:
+            out[key] = f"cannot read {f}: {exc.strerror or exc}"
+    try:
+        from cryptography import x509
+        from cryptography.exceptions import UnsupportedAlgorithm
+        from cryptography.hazmat.primitives import serialization
+    except ImportError:                                 # the runtime checks them at its start
+        return out
+    certs: dict[str, list] = {}
+    for key in ("cert", "ca"):
+        if key in data:
+            try:
+                certs[key] = x509.load_pem_x509_certificates(data[key])
+            except ValueError:
+                out[key] = f"{files[key]} holds no PEM certificate"
+    if "key" in data:
+        try:
+            private = serialization.load_pem_private_key(data["key"], password=None)
+        except TypeError:
+            out["key"] = f"{files['key']} is encrypted: the runtime reads a key without a password"
+        except (ValueError, UnsupportedAlgorithm):
+            out["key"] = f"{files['key']} holds no PEM private key"
+        else:
+            if certs.get("cert") and private.public_key().public_bytes(
+                    serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo) != \
+                    certs["cert"][0].public_key().public_bytes(serialization.Encoding.DER,
+                                                               serialization.PublicFormat.SubjectPublicKeyInfo):
+                out["key"] = f"{files['key']} is not the private key of {files['cert']}"
+    return out
+
+
 def load_config(path: Path) -> RunConfig:
     """Read and check a TOML run configuration; raise ConfigError naming every problem of every table at once,
     each as `file:line:col: error: message`."""
@@ -445,6 +536,8 @@ def load_config(path: Path) -> RunConfig:
     modbus = doc.data.get("modbus") if isinstance(doc.data.get("modbus"), dict) else {}
     if "client" in modbus:
         cfg.allow = cfg.allow + check_clients(doc, modbus["client"], cfg.allow)
+    if "tls" in modbus:
+        check_tls(doc, modbus["tls"], cfg, path.parent)
     io = doc.data.get("io") if isinstance(doc.data.get("io"), dict) else {}
     cfg.io_chosen = "layer" in io
     if "device" in io:
@@ -595,6 +688,9 @@ def runtime_argv(binary: Path, cfg: RunConfig) -> list[str]:
         argv += ["--monitor", str(sock), "--monitor-token", str(token), "--audit", str(audit)]
     if cfg.events_file is not None:
         argv += ["--events", str(cfg.events_file)]
+    if cfg.tls_cert is not None:
+        argv += ["--tls-cert", str(cfg.tls_cert), "--tls-key", str(cfg.tls_key), "--tls-ca", str(cfg.tls_ca),
+                 "--tls-port", str(cfg.tls_port), "--tls-bind", cfg.tls_bind or cfg.bind]
     if cfg.io == "sim" and cfg.io_chosen and cfg.sim_flag is not None:
         argv += ["--sim-flag", cfg.sim_flag]        # the program's simulated plant runs only when asked
     return argv
@@ -656,6 +752,8 @@ def prepare_run(args: argparse.Namespace, program_c: Path) -> list[str]:
     retain = cfg.retain_file if cfg.retain_file is not None else DEFAULT_RETAIN_FILE
     binary = build_runtime(program_c, args.build_dir, sanitize=args.sanitize, observer=setup.observer)
     probe_listen(cfg.bind, cfg.port)                 # before anything is written: a taken port leaves nothing
+    if cfg.tls_cert is not None:
+        probe_listen(cfg.tls_bind or cfg.bind, cfg.tls_port)
     try:
         retain.parent.mkdir(parents=True, exist_ok=True)
         if cfg.monitor:
@@ -679,8 +777,10 @@ def probe_listen(bind: str, port: int) -> None:
         try:
             s.bind((bind, port))
         except OSError as exc:
-            raise AddressInUse(f"cannot listen on {bind}:{port}: {exc.strerror or exc} (another PLC runs there? "
-                               f"give another --port or stop it); nothing was written") from None
+            why = ("a port below 1024 needs root or CAP_NET_BIND_SERVICE" if exc.errno == errno.EACCES else
+                   "another PLC runs there? give another --port or stop it")
+            raise AddressInUse(f"cannot listen on {bind}:{port}: {exc.strerror or exc} ({why}); nothing was "
+                               "written") from None
 
 
 def run_command(args: argparse.Namespace, program_c: Path, generated: bool = False) -> int:

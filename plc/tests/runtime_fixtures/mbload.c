@@ -15,7 +15,12 @@
  * Prints one JSON line: requests, errors, requests per second, latency
  * percentiles.  Exit status 0 when there was no error.
  *
+ * With --tls-cert/--tls-key/--tls-ca each connection is Modbus/TCP Security
+ * (TLS with this client certificate, the server's verified against the CA);
+ * the handshake is done before the clock starts.
+ *
  *   mbload --port N [--host A] [--clients C] [--requests R | --duration S] [--base B]
+ *          [--tls-cert F --tls-key F --tls-ca F]
  */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
@@ -23,6 +28,7 @@
 #include <getopt.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <openssl/ssl.h>
 #include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -47,6 +53,7 @@ static int port = 0, clients = 16, base = 1200;   /* %MW176.. : unused by the fi
 static long requests = 10000;
 static double duration = 0;
 static pthread_barrier_t start_line;
+static SSL_CTX *tls;                  /* NULL: plain Modbus/TCP */
 
 static uint64_t now_ns(void)
 {
@@ -61,10 +68,10 @@ static void fail(worker_t *w, const char *fmt, long k, long a, long b)
         snprintf(w->first_error, sizeof w->first_error, fmt, w->id, k, a, b);
 }
 
-static int recv_all(int fd, uint8_t *p, size_t n)
+static int recv_all(int fd, SSL *ssl, uint8_t *p, size_t n)
 {
     while (n > 0) {
-        ssize_t r = recv(fd, p, n, 0);
+        ssize_t r = ssl ? SSL_read(ssl, p, (int)n) : recv(fd, p, n, 0);
         if (r <= 0)
             return -1;
         p += r;
@@ -74,16 +81,16 @@ static int recv_all(int fd, uint8_t *p, size_t n)
 }
 
 /* Send one request, receive its response; returns the response PDU length or -1. */
-static int transact(int fd, const uint8_t *req, size_t len, uint8_t *rsp, size_t cap)
+static int transact(int fd, SSL *ssl, const uint8_t *req, size_t len, uint8_t *rsp, size_t cap)
 {
-    if (send(fd, req, len, MSG_NOSIGNAL) != (ssize_t)len)
+    if ((ssl ? SSL_write(ssl, req, (int)len) : send(fd, req, len, MSG_NOSIGNAL)) != (ssize_t)len)
         return -1;
-    if (recv_all(fd, rsp, 7) != 0)
+    if (recv_all(fd, ssl, rsp, 7) != 0)
         return -1;
     size_t mlen = (size_t)(rsp[4] << 8 | rsp[5]);
     if (mlen < 2 || 6 + mlen > cap)
         return -1;
-    if (recv_all(fd, rsp + 7, mlen - 1) != 0)
+    if (recv_all(fd, ssl, rsp + 7, mlen - 1) != 0)
         return -1;
     return (int)(mlen - 1);
 }
@@ -102,9 +109,15 @@ static void *run_worker(void *arg)
     setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
     setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
     int connected = connect(fd, (struct sockaddr *)&sa, sizeof sa) == 0;
+    SSL *ssl = NULL;
+    if (connected && tls) {
+        ssl = SSL_new(tls);
+        connected = ssl && SSL_set_fd(ssl, fd) == 1 && SSL_connect(ssl) == 1;
+    }
     pthread_barrier_wait(&start_line);
     if (!connected) {
-        fail(w, "client %d: connect failed (%ld %ld %ld)", 0, 0, 0);
+        fail(w, "client %d: connect or TLS handshake failed (%ld %ld %ld)", 0, 0, 0);
+        SSL_free(ssl);
         close(fd);
         return NULL;
     }
@@ -137,7 +150,7 @@ static void *run_worker(void *arg)
         req[5] = (uint8_t)(len - 6);
 
         const uint64_t t0 = now_ns();
-        int n = transact(fd, req, len, rsp, sizeof rsp);
+        int n = transact(fd, ssl, req, len, rsp, sizeof rsp);
         const uint64_t t1 = now_ns();
         if (w->done < (duration > 0 ? 2000000 : requests))
             w->lat_ns[w->done] = (uint32_t)((t1 - t0) > UINT32_MAX ? UINT32_MAX : (t1 - t0));
@@ -177,6 +190,9 @@ static void *run_worker(void *arg)
             have_tick = 1;
         }
     }
+    if (ssl)
+        SSL_shutdown(ssl);
+    SSL_free(ssl);
     close(fd);
     return NULL;
 }
@@ -193,8 +209,11 @@ int main(int argc, char **argv)
         { "host", required_argument, NULL, 'h' }, { "port", required_argument, NULL, 'p' },
         { "clients", required_argument, NULL, 'c' }, { "requests", required_argument, NULL, 'n' },
         { "duration", required_argument, NULL, 'd' }, { "base", required_argument, NULL, 'b' },
+        { "tls-cert", required_argument, NULL, 'C' }, { "tls-key", required_argument, NULL, 'K' },
+        { "tls-ca", required_argument, NULL, 'A' },
         { NULL, 0, NULL, 0 },
     };
+    const char *cert = NULL, *key = NULL, *ca = NULL;
     int c;
 
     while ((c = getopt_long(argc, argv, "", opts, NULL)) != -1) {
@@ -205,10 +224,24 @@ int main(int argc, char **argv)
         case 'n': requests = atol(optarg); break;
         case 'd': duration = atof(optarg); break;
         case 'b': base = atoi(optarg); break;
+        case 'C': cert = optarg; break;
+        case 'K': key = optarg; break;
+        case 'A': ca = optarg; break;
         default:
-            fprintf(stderr, "usage: mbload --port N [--host A] [--clients C] [--requests R | --duration S] [--base B]\n");
+            fprintf(stderr, "usage: mbload --port N [--host A] [--clients C] [--requests R | --duration S] [--base B]"
+                    " [--tls-cert F --tls-key F --tls-ca F]\n");
             return 2;
         }
+    }
+    if (cert || key || ca) {
+        tls = SSL_CTX_new(TLS_client_method());
+        if (!tls || !cert || !key || !ca || SSL_CTX_use_certificate_chain_file(tls, cert) != 1
+            || SSL_CTX_use_PrivateKey_file(tls, key, SSL_FILETYPE_PEM) != 1
+            || SSL_CTX_load_verify_locations(tls, ca, NULL) != 1) {
+            fprintf(stderr, "mbload: --tls-cert, --tls-key and --tls-ca: all three, loadable\n");
+            return 2;
+        }
+        SSL_CTX_set_verify(tls, SSL_VERIFY_PEER, NULL);
     }
     if (port <= 0 || clients < 1 || clients > 32 || (requests < 1 && duration <= 0)) {
         fprintf(stderr, "mbload: need --port, 1..32 clients and requests or a duration\n");

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import json
 import socket
+import ssl
 import struct
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import rt_harness as h
 from plc.runtime import build_runtime
@@ -67,15 +69,18 @@ def _recv_frame(s: socket.socket) -> bytes | None:
             return None
         rest = _recv_exact(s, struct.unpack(">H", head[4:6])[0] - 1)
         return None if rest is None else head + rest
-    except ConnectionResetError:
+    except (ConnectionResetError, ssl.SSLError):          # a TLS connection reset or cut mid-record: closed too
         return None
 
 
-def replay(port: int, entry: CorpusEntry, timeout: float = 10.0) -> str | None:
-    """Send one corpus entry on a fresh connection; None when the server acted as recorded,
-    else what differed."""
+def replay(port: int, entry: CorpusEntry, timeout: float = 10.0,
+           connect: Callable[[int, float], socket.socket] | None = None) -> str | None:
+    """Send one corpus entry on a fresh connection (`connect(port, timeout)`, e.g. a TLS one; default: plain
+    TCP); None when the server acted as recorded, else what differed."""
     where = f"{CORPUS.name}:{entry.line} {entry.name}"
-    with socket.create_connection(("127.0.0.1", port), timeout=timeout * h.SLOW) as s:
+    opened = connect(port, timeout * h.SLOW) if connect else socket.create_connection(("127.0.0.1", port),
+                                                                                       timeout=timeout * h.SLOW)
+    with opened as s:
         s.sendall(entry.data)
         for outcome in entry.outcomes:
             kind, *args = outcome.split(":")

@@ -88,14 +88,14 @@ def st_runtime_binary(src: Path, files: dict[str, str]) -> Path:
 
 def tool_binary(name: str) -> Path:
     """A test client of runtime_fixtures/NAME.c (mbload, mbfuzz, mbhostile), built once per source version
-    (plain sockets, no sanitizer: it is the tester, not the tested)."""
+    (no sanitizer: it is the tester, not the tested; OpenSSL for mbload's TLS connections)."""
     src = FIXTURES / f"{name}.c"
     CACHE.mkdir(parents=True, exist_ok=True)
     out = CACHE / f"{name}-{int(src.stat().st_mtime_ns)}"
     if not out.exists():
         tmp = out.with_suffix(f".{os.getpid()}")
         subprocess.run(["gcc", "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", str(src), "-o", str(tmp),
-                        "-lpthread"], check=True)
+                        "-lpthread", "-lssl", "-lcrypto"], check=True)
         os.replace(tmp, out)
     return out
 

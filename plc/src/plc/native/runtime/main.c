@@ -35,6 +35,7 @@
 #define FALLBACK_TICK_NS 10000000u
 #define DEFAULT_WATCHDOG_MS 1000
 #define DEFAULT_FRAME_TIMEOUT_MS 2000
+#define DEFAULT_TLS_PORT 802              /* Modbus/TCP Security's registered port */
 
 static void usage(FILE *f)
 {
@@ -70,6 +71,19 @@ static void usage(FILE *f)
 "  --host-coils LIST        of the writable coils, those a client of role host may write\n"
 "                           (default: every writable coil)\n"
 "  --host-registers LIST    of the writable registers, those a host may write (same default)\n"
+"  --tls-cert FILE          serve Modbus/TCP Security (MBAPS: TLS 1.2 or later) beside the\n"
+"                           plain listener, with this server certificate (PEM); needs\n"
+"                           --tls-key and --tls-ca.  A client must present a certificate\n"
+"                           signed by the CA, else the handshake is refused; its role is\n"
+"                           the certificate's role extension (OID 1.3.6.1.4.1.50316.802.1,\n"
+"                           a UTF8String read, host or engineer); a certificate without a\n"
+"                           known role is refused.  --allow does not apply to TLS clients\n"
+"  --tls-key FILE           the server certificate's private key (PEM)\n"
+"  --tls-ca FILE            the CA certificate(s) that sign the clients' certificates (PEM)\n"
+"  --tls-bind ADDR          IPv4 address of the TLS listener (default: --bind)\n"
+"  --tls-port N             its TCP port (default %d; 0 = any free port, logged).  TLS\n"
+"                           clients share --max-clients; a handshake not done within\n"
+"                           --frame-timeout is dropped\n"
 "  --no-rt                  do not ask for SCHED_FIFO\n"
 "  --rt-priority N          SCHED_FIFO priority of the scan thread, 1..98 (default %d;\n"
 "                           the watchdog runs 1 level above it, the remote I/O threads\n"
@@ -103,7 +117,7 @@ static void usage(FILE *f)
 "SIGINT/SIGTERM or --duration, 1 when start-up fails, 2 on a usage error or when\n"
 "the Modbus address cannot be bound (e.g. the port is in use; nothing is written then).\n",
             DEFAULT_PORT, IO_MAX_DEVICES, DEFAULT_RETAIN_INTERVAL_MS, DEFAULT_MAX_CLIENTS, DEFAULT_FRAME_TIMEOUT_MS,
-            DEFAULT_RT_PRIORITY,
+            DEFAULT_TLS_PORT, DEFAULT_RT_PRIORITY,
             DEFAULT_WATCHDOG_MS, MODBUS_AUDIT_PER_S, DIAG_BASE, DIAG_BASE + DIAG_COUNT - 1);
 }
 
@@ -261,7 +275,8 @@ static int parse_discrete_input(const char *text, int *out)
 enum { OPT_BIND = 256, OPT_PORT, OPT_IO, OPT_IO_DEVICE, OPT_RETAIN, OPT_RETAIN_INTERVAL, OPT_RETAIN_REGISTERS, OPT_ALLOW,
        OPT_MAX_CLIENTS, OPT_FRAME_TIMEOUT, OPT_READ_ONLY, OPT_WRITABLE_COILS, OPT_WRITABLE_REGISTERS, OPT_NO_RT, OPT_RT_PRIORITY, OPT_CPU, OPT_CPU_LATENCY, OPT_STATUS,
        OPT_STATUS_INTERVAL, OPT_DURATION, OPT_WATCHDOG, OPT_DESCRIBE_RETAIN, OPT_VERSION, OPT_HELP,
-       OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS, OPT_SIM_FLAG, OPT_HOST_COILS, OPT_HOST_REGISTERS };
+       OPT_MONITOR, OPT_MONITOR_TOKEN, OPT_AUDIT, OPT_EVENTS, OPT_SIM_FLAG, OPT_HOST_COILS, OPT_HOST_REGISTERS,
+       OPT_TLS_CERT, OPT_TLS_KEY, OPT_TLS_CA, OPT_TLS_BIND, OPT_TLS_PORT };
 
 static int parse_options(int argc, char **argv, rt_options_t *o)
 {
@@ -295,6 +310,11 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         { "audit", required_argument, NULL, OPT_AUDIT },
         { "events", required_argument, NULL, OPT_EVENTS },
         { "sim-flag", required_argument, NULL, OPT_SIM_FLAG },
+        { "tls-cert", required_argument, NULL, OPT_TLS_CERT },
+        { "tls-key", required_argument, NULL, OPT_TLS_KEY },
+        { "tls-ca", required_argument, NULL, OPT_TLS_CA },
+        { "tls-bind", required_argument, NULL, OPT_TLS_BIND },
+        { "tls-port", required_argument, NULL, OPT_TLS_PORT },
         { "version", no_argument, NULL, OPT_VERSION },
         { "help", no_argument, NULL, OPT_HELP },
         { NULL, 0, NULL, 0 },
@@ -307,6 +327,7 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     memset(o, 0, sizeof *o);
     snprintf(o->bind, sizeof o->bind, "127.0.0.1");
     o->port = DEFAULT_PORT;
+    o->tls_port = DEFAULT_TLS_PORT;
     o->io = &io_sim_layer;
     o->retain_interval_ms = DEFAULT_RETAIN_INTERVAL_MS;
     o->max_clients = DEFAULT_MAX_CLIENTS;
@@ -336,6 +357,27 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
             if (!parse_long(optarg, 0, 65535, &v))
                 return usage_error("--port: '%s' is not a port number 0..65535", optarg);
             o->port = (int)v;
+            break;
+        case OPT_TLS_BIND: {
+            struct in_addr ia;
+            if (strlen(optarg) >= sizeof o->tls_bind || inet_pton(AF_INET, optarg, &ia) != 1)
+                return usage_error("--tls-bind: '%s' is not an IPv4 address", optarg);
+            snprintf(o->tls_bind, sizeof o->tls_bind, "%s", optarg);
+            break;
+        }
+        case OPT_TLS_PORT:
+            if (!parse_long(optarg, 0, 65535, &v))
+                return usage_error("--tls-port: '%s' is not a port number 0..65535", optarg);
+            o->tls_port = (int)v;
+            break;
+        case OPT_TLS_CERT:
+            o->tls_cert = optarg;
+            break;
+        case OPT_TLS_KEY:
+            o->tls_key = optarg;
+            break;
+        case OPT_TLS_CA:
+            o->tls_ca = optarg;
             break;
         case OPT_IO:
             o->io = io_layer_find(optarg);
@@ -479,6 +521,12 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
         o->host_registers.bits[i] = host_registers ? o->host_registers.bits[i] & o->writable_registers.bits[i]
                                                    : o->writable_registers.bits[i];
     }
+    if ((o->tls_cert != NULL) != (o->tls_key != NULL) || (o->tls_cert != NULL) != (o->tls_ca != NULL))
+        return usage_error("--tls-cert, --tls-key and --tls-ca go together (the TLS listener needs all three)%s", "");
+    if (!o->tls_bind[0])
+        snprintf(o->tls_bind, sizeof o->tls_bind, "%s", o->bind);
+    if (o->tls_cert && o->tls_port == o->port && o->port != 0 && strcmp(o->tls_bind, o->bind) == 0)
+        return usage_error("--tls-port: %s is the plain listener's port too", o->bind);
     if (o->n_io_devices > 0 && o->io != &io_modbus_layer)
         return usage_error("--io-device needs --io modbus (I/O layer '%s' has no devices)", o->io->name);
     if (o->n_io_devices == 0 && o->io == &io_modbus_layer)
@@ -568,6 +616,8 @@ int main(int argc, char **argv)
     }
     if (rt.opt.io == &io_sim_layer)
         rt.flags |= DIAG_FLAG_SIM_IO;
+    if (modbus_server_check_tls(&rt) != 0)      /* a certificate or key that does not load: nothing written */
+        goto out_io;
     if (modbus_server_probe(&rt) != 0) {        /* e.g. the port is taken: an environment problem, nothing written */
         status = 2;
         goto out_io;

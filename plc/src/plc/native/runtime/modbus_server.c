@@ -54,6 +54,23 @@
  * lines a second: beyond that the requests are counted and summed up in one
  * line when the second is over.  Refused writes are also logged (one line per
  * second, as the decisions above).
+ *
+ * Modbus/TCP Security (MBAPS, --tls-cert): a second listener whose clients
+ * take the same slots (--max-clients) and the same request path: libmodbus
+ * has no TLS, so OpenSSL terminates it here.  Handshakes and reads are
+ * non-blocking like the plain clients'; the decrypted bytes go to the same
+ * framing and checks, and libmodbus builds the response as for a plain
+ * client, into one end of a socket pair, from which it is read and encrypted
+ * to the client.  TLS 1.2 at least, no renegotiation, no session resumption
+ * (every connection shows its certificate).  The client must present a
+ * certificate the CA of --tls-ca signed, valid now, else the handshake fails
+ * and the connection is refused; its role is the value of the certificate's
+ * MBAPS role extension (OID 1.3.6.1.4.1.50316.802.1, a UTF8String: read,
+ * host or engineer); a certificate without it or with another value is
+ * refused (no default role: who is not named gets nothing).  --allow does
+ * not apply: the certificate is the client's identity.  A handshake not
+ * done within --frame-timeout is dropped.  The audit line of a TLS client's
+ * write carries its certificate's common name.
  */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
@@ -62,6 +79,9 @@
 #include <linux/sockios.h>
 #include <modbus.h>
 #include <netinet/in.h>
+#include <openssl/err.h>
+#include <openssl/ssl.h>
+#include <openssl/x509v3.h>
 #include <netinet/tcp.h>
 #include <pthread.h>
 #include <stdarg.h>
@@ -86,6 +106,8 @@
 #define PRIORITY_BELOW_SCAN 10       /* SCHED_FIFO priority of this thread: the scan's minus this */
 #define UNSENT_POLL_NS 10000000u      /* how often a client that stopped reading is looked at */
 #define PEER_TEXT (INET_ADDRSTRLEN + 8)
+#define CN_TEXT 65                    /* a certificate's common name: at most 64 characters */
+#define MBAPS_ROLE_OID "1.3.6.1.4.1.50316.802.1"
 
 typedef struct client {
     int fd;                           /* -1: free slot */
@@ -96,8 +118,12 @@ typedef struct client {
     uint64_t admitted_round;          /* server loop round it was accepted in */
     uint32_t served;                  /* requests answered */
     client_role_t role;
+    SSL *ssl;                         /* a client of the TLS listener; NULL: plain */
+    bool handshaking;                 /* its TLS handshake is not done yet */
+    bool handshake_wants_write;       /* ... and waits for room in its socket */
     uint8_t buf[CLIENT_BUFFER];
     char peer[PEER_TEXT];
+    char cn[CN_TEXT];                 /* a TLS client's certificate's common name (printable ASCII) */
 } client_t;
 
 /* ------------------------------------------------- rate-limited decisions */
@@ -114,6 +140,9 @@ typedef enum event_kind {
     EV_SOCKET_ERROR,
     EV_STOPPING,
     EV_WRITE_REFUSED,
+    EV_TLS_REFUSED,
+    EV_TLS_TIMEOUT,
+    EV_TLS_AUTHENTICATED,
     EV_COUNT
 } event_kind_t;
 
@@ -132,6 +161,9 @@ static const struct {
     [EV_SOCKET_ERROR] = { LOG_WARN, "dropped: socket error" },
     [EV_STOPPING] = { LOG_INFO, "disconnected (runtime stopping)" },
     [EV_WRITE_REFUSED] = { LOG_WARN, "write refused" },
+    [EV_TLS_REFUSED] = { LOG_WARN, "refused: TLS handshake failed or no known role in its certificate" },
+    [EV_TLS_TIMEOUT] = { LOG_WARN, "dropped: TLS handshake not done within the frame timeout" },
+    [EV_TLS_AUTHENTICATED] = { LOG_INFO, "authenticated over TLS" },
 };
 
 typedef struct event_gate {
@@ -146,6 +178,10 @@ struct modbus_server {
     modbus_t *ctx;
     modbus_mapping_t *scratch;        /* what modbus_reply() reads from and writes into */
     int listen_fd;
+    int tls_listen_fd;                /* -1: no TLS listener */
+    SSL_CTX *tls;
+    ASN1_OBJECT *role_oid;            /* the MBAPS role extension */
+    int reply_pair[2];                /* libmodbus writes a TLS client's response into [0], read from [1] */
     int wake[2];                      /* self-pipe: stop request */
     pthread_t thread;
     bool thread_started;
@@ -160,7 +196,7 @@ struct modbus_server {
     uint64_t audit_window_ns;         /* when the window began; 0: none open */
     unsigned audit_lines;             /* itemised in it */
     unsigned audit_held_ok, audit_held_refused;   /* counted, not itemised */
-    char audit_last[300];             /* the last request not itemised */
+    char audit_last[400];             /* the last request not itemised */
 };
 
 /* --------------------------------------------------------------- helpers */
@@ -280,6 +316,12 @@ static void close_client(modbus_server_t *srv, client_t *c, event_kind_t why, co
     vsnprintf(detail, sizeof detail, fmt, ap);
     va_end(ap);
     note_event(srv, why, c->peer, "%s", detail);
+    if (c->ssl) {
+        if (why == EV_CLOSED || why == EV_STOPPING)
+            SSL_shutdown(c->ssl);             /* close_notify, once; no wait for the client's */
+        SSL_free(c->ssl);
+        c->ssl = NULL;
+    }
     if (why != EV_CLOSED && why != EV_STOPPING) {
         /* Reset, not FIN: a hostile storm leaves no TIME_WAIT sockets behind here. */
         struct linger abort_close = { .l_onoff = 1, .l_linger = 0 };
@@ -288,8 +330,11 @@ static void close_client(modbus_server_t *srv, client_t *c, event_kind_t why, co
     close(c->fd);
     c->fd = -1;
     c->len = 0;
+    c->handshaking = c->handshake_wants_write = false;
     srv->n_clients--;
-    if (why != EV_CLOSED && why != EV_STOPPING)
+    if (why == EV_TLS_REFUSED)
+        srv->refused++;                       /* no certificate, a bad one, or no role: not let in */
+    else if (why != EV_CLOSED && why != EV_STOPPING)
         srv->dropped++;
     update_counters(srv);
 }
@@ -358,7 +403,22 @@ static void tune_socket(int fd)
     setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &cnt, sizeof cnt);
 }
 
-static void admit(modbus_server_t *srv, int fd, const char *peer, client_role_t role)
+/* A TLS client begins with its handshake (tls_handshake), within the frame timeout; its role is its
+ * certificate's.  NULL when OpenSSL cannot take it (logged). */
+static SSL *tls_session(modbus_server_t *srv, int fd)
+{
+    SSL *ssl = SSL_new(srv->tls);
+
+    if (ssl && SSL_set_fd(ssl, fd) == 1) {
+        SSL_set_accept_state(ssl);
+        return ssl;
+    }
+    log_msg(srv->rt->log, LOG_WARN, "modbus: cannot begin a TLS session: %s", ERR_error_string(ERR_get_error(), NULL));
+    SSL_free(ssl);
+    return NULL;
+}
+
+static void admit(modbus_server_t *srv, int fd, const char *peer, client_role_t role, SSL *ssl)
 {
     const rt_options_t *opt = &srv->rt->opt;
 
@@ -373,15 +433,27 @@ static void admit(modbus_server_t *srv, int fd, const char *peer, client_role_t 
         c->served = 0;
         c->admitted_round = srv->round;
         c->role = role;
+        c->ssl = ssl;
+        c->handshaking = ssl != NULL;
+        c->handshake_wants_write = false;
+        c->cn[0] = 0;
+        if (ssl)
+            c->partial_since_ns = c->connected_ns;      /* the handshake is bound by the frame timeout */
         snprintf(c->peer, sizeof c->peer, "%s", peer);
         srv->n_clients++;
         break;
     }
     update_counters(srv);
-    note_event(srv, EV_CONNECTED, peer, "%d of %d, role %s", srv->n_clients, opt->max_clients, role_name(role));
+    if (ssl)
+        note_event(srv, EV_CONNECTED, peer, "%d of %d, TLS: role from its certificate", srv->n_clients,
+                   opt->max_clients);
+    else
+        note_event(srv, EV_CONNECTED, peer, "%d of %d, role %s", srv->n_clients, opt->max_clients, role_name(role));
 }
 
-static void accept_clients(modbus_server_t *srv)
+/* The newcomers of one listener: the plain one (the allowlist gives the role) or the TLS one (the certificate
+ * will). */
+static void accept_clients(modbus_server_t *srv, int listen_fd, bool tls)
 {
     const rt_options_t *opt = &srv->rt->opt;
 
@@ -393,7 +465,7 @@ static void accept_clients(modbus_server_t *srv)
         struct sockaddr_in sa;
         socklen_t salen = sizeof sa;
         char peer[PEER_TEXT], ip[INET_ADDRSTRLEN];
-        int fd = accept4(srv->listen_fd, (struct sockaddr *)&sa, &salen, SOCK_NONBLOCK | SOCK_CLOEXEC);
+        int fd = accept4(listen_fd, (struct sockaddr *)&sa, &salen, SOCK_NONBLOCK | SOCK_CLOEXEC);
 
         if (fd < 0) {
             if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR && errno != ECONNABORTED)
@@ -404,8 +476,8 @@ static void accept_clients(modbus_server_t *srv)
             snprintf(ip, sizeof ip, "?");
         snprintf(peer, sizeof peer, "%s:%u", ip, ntohs(sa.sin_port));
 
-        client_role_t role;
-        if (!allowed(opt, ntohl(sa.sin_addr.s_addr), &role)) {
+        client_role_t role = ROLE_READ;
+        if (!tls && !allowed(opt, ntohl(sa.sin_addr.s_addr), &role)) {
             refuse(srv, fd, peer, EV_REFUSED_ALLOWLIST, "");
             continue;
         }
@@ -425,7 +497,12 @@ static void accept_clients(modbus_server_t *srv)
                          "pending", peer, (unsigned long long)((now_ns() - victim->connected_ns) / 1000000u),
                          victim->served, victim->len);
         }
-        admit(srv, fd, peer, role);
+        SSL *ssl = NULL;
+        if (tls && !(ssl = tls_session(srv, fd))) {
+            refuse(srv, fd, peer, EV_TLS_REFUSED, "no TLS session");
+            continue;
+        }
+        admit(srv, fd, peer, role, ssl);
     }
 }
 
@@ -614,17 +691,21 @@ static void audit_write(modbus_server_t *srv, const client_t *c, const char *wha
         snprintf(result, sizeof result, "refused: exception %02d %s (%s)", exc, exception_name(exc), why);
     else
         snprintf(result, sizeof result, "ok");
+    char who[PEER_TEXT + CN_TEXT + 40];              /* a TLS client: its certificate's common name too */
+    if (c->ssl)
+        snprintf(who, sizeof who, "peer=%s tls cn=\"%s\" role=%s", c->peer, c->cn, role_name(c->role));
+    else
+        snprintf(who, sizeof who, "peer=%s role=%s", c->peer, role_name(c->role));
     if (srv->audit_lines < MODBUS_AUDIT_PER_S) {
         srv->audit_lines++;
-        audit_line(srv->rt->audit, "modbus peer=%s role=%s %s -> %s", c->peer, role_name(c->role), what, result);
+        audit_line(srv->rt->audit, "modbus %s %s -> %s", who, what, result);
         return;
     }
     if (exc)
         srv->audit_held_refused++;
     else
         srv->audit_held_ok++;
-    snprintf(srv->audit_last, sizeof srv->audit_last, "peer=%s role=%s %s -> %s", c->peer, role_name(c->role), what,
-             result);
+    snprintf(srv->audit_last, sizeof srv->audit_last, "%s %s -> %s", who, what, result);
 }
 
 /* Copy what a valid request reads into the scratch mapping, or queue what it
@@ -667,6 +748,60 @@ static void serve_locked(modbus_server_t *srv, const uint8_t *pdu)
     }
 }
 
+/* libmodbus builds and sends the response to a checked request (an exception when exc) on fd. */
+static int reply(modbus_server_t *srv, int fd, const uint8_t *req, unsigned len, int exc)
+{
+    int rc;
+
+    modbus_set_socket(srv->ctx, fd);
+    if (exc)
+        rc = modbus_reply_exception(srv->ctx, req, (unsigned)exc);
+    else
+        rc = modbus_reply(srv->ctx, req, (int)len, srv->scratch);
+    modbus_set_socket(srv->ctx, -1);
+    return rc;
+}
+
+/* What OpenSSL said last on this thread (its queue emptied), or what the system did. */
+static const char *tls_error_text(void)
+{
+    unsigned long e = ERR_get_error();
+    const char *reason = e ? ERR_reason_error_string(e) : NULL;
+
+    ERR_clear_error();
+    return reason ? reason : errno ? strerror(errno) : "connection closed";
+}
+
+/* The same response for a TLS client: libmodbus writes it into the socket pair, it goes out encrypted.
+ * Returns its length, -1 with errno as reply() (EAGAIN: the client's socket is full), -2: a TLS error. */
+static int reply_tls(modbus_server_t *srv, client_t *c, const uint8_t *req, unsigned len, int exc)
+{
+    uint8_t out[MODBUS_TCP_MAX_ADU_LENGTH + 16];
+    ssize_t got = 0, n;
+    int rc = reply(srv, srv->reply_pair[0], req, len, exc);
+
+    /* all of it, also what a failed reply left: the next response starts clean */
+    while ((size_t)got < sizeof out && (n = read(srv->reply_pair[1], out + got, sizeof out - (size_t)got)) > 0)
+        got += n;
+    if (rc < 0)
+        return rc;
+    if (got != rc) {
+        errno = EMBBADDATA;
+        return -1;
+    }
+    ERR_clear_error();
+    errno = 0;
+    int w = SSL_write(c->ssl, out, (int)got);
+    if (w == (int)got)
+        return rc;
+    int e = SSL_get_error(c->ssl, w);
+    if (e == SSL_ERROR_WANT_WRITE || e == SSL_ERROR_WANT_READ) {
+        errno = EAGAIN;                      /* the record did not fit: a client that stopped reading */
+        return -1;
+    }
+    return -2;
+}
+
 /* Handle one complete frame.  Returns -1 when the client was closed. */
 static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, unsigned len)
 {
@@ -701,12 +836,11 @@ static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, u
 
     if (c->served == 0)
         tune_socket(c->fd);
-    modbus_set_socket(srv->ctx, c->fd);
-    if (exc)
-        rc = modbus_reply_exception(srv->ctx, req, (unsigned)exc);
-    else
-        rc = modbus_reply(srv->ctx, req, (int)len, srv->scratch);
-    modbus_set_socket(srv->ctx, -1);
+    rc = c->ssl ? reply_tls(srv, c, req, len, exc) : reply(srv, c->fd, req, len, exc);
+    if (rc == -2) {
+        close_client(srv, c, EV_SOCKET_ERROR, "cannot send a TLS response: %s", tls_error_text());
+        return -1;
+    }
     if (rc < 0) {
         /* A non-blocking send that does not fit whole: the client stopped reading. */
         if (errno == EAGAIN || errno == EWOULDBLOCK || errno == EMBBADDATA)
@@ -721,38 +855,160 @@ static int handle_frame(modbus_server_t *srv, client_t *c, const uint8_t *req, u
     return 0;
 }
 
-static void read_client(modbus_server_t *srv, client_t *c)
+/* ------------------------------------------------------------------ TLS */
+
+/* The role a client certificate names in its MBAPS role extension: a DER UTF8String, read, host or engineer.
+ * false with the reason in why when it names none of them. */
+static bool certificate_role(modbus_server_t *srv, X509 *cert, client_role_t *role, char *why, size_t n)
 {
-    ssize_t n = recv(c->fd, c->buf + c->len, sizeof c->buf - c->len, 0);
+    int at = X509_get_ext_by_OBJ(cert, srv->role_oid, -1);
 
-    if (n == 0) {
-        close_client(srv, c, EV_CLOSED, "%s", "");
+    if (at < 0) {
+        snprintf(why, n, "its certificate has no role extension (OID " MBAPS_ROLE_OID ")");
+        return false;
+    }
+    const ASN1_OCTET_STRING *data = X509_EXTENSION_get_data(X509_get_ext(cert, at));
+    const unsigned char *p = ASN1_STRING_get0_data(data), *end = p + ASN1_STRING_length(data);
+    ASN1_UTF8STRING *text = d2i_ASN1_UTF8STRING(NULL, &p, end - p);
+    bool ok = text != NULL && p == end;
+
+    if (!ok) {
+        snprintf(why, n, "its role extension is not one UTF8String");
+    } else {
+        const int len = ASN1_STRING_length(text);
+        const char *v = (const char *)ASN1_STRING_get0_data(text);
+        if (len == 4 && memcmp(v, "read", 4) == 0)
+            *role = ROLE_READ;
+        else if (len == 4 && memcmp(v, "host", 4) == 0)
+            *role = ROLE_HOST;
+        else if (len == 8 && memcmp(v, "engineer", 8) == 0)
+            *role = ROLE_ENGINEER;
+        else {
+            char shown[24];
+            int k = 0;
+            for (; k < len && k < (int)sizeof shown - 1; k++)
+                shown[k] = v[k] > 0x20 && v[k] < 0x7f ? v[k] : '?';
+            shown[k] = 0;
+            snprintf(why, n, "its role '%s' is not read, host or engineer", shown);
+            ok = false;
+        }
+    }
+    ASN1_UTF8STRING_free(text);
+    return ok;
+}
+
+/* The certificate's common name as printable ASCII without quotes ("-" without one): for the log and audit. */
+static void certificate_cn(X509 *cert, char *out, size_t n)
+{
+    int len = X509_NAME_get_text_by_NID(X509_get_subject_name(cert), NID_commonName, out, (int)n);
+
+    if (len <= 0) {
+        snprintf(out, n, "-");
         return;
     }
-    if (n < 0) {
-        if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
-            close_client(srv, c, EV_SOCKET_ERROR, "%s", strerror(errno));
+    for (char *p = out; *p; p++)
+        if (*p < 0x20 || *p > 0x7e || *p == '"' || *p == '\\')
+            *p = '?';
+}
+
+/* One step of a TLS client's handshake; when it is done, the role its certificate names (or the client is
+ * refused: no certificate, one the CA did not sign, expired, or without a known role). */
+static void tls_handshake(modbus_server_t *srv, client_t *c)
+{
+    char why[160];
+
+    ERR_clear_error();
+    errno = 0;
+    int r = SSL_do_handshake(c->ssl);
+    if (r != 1) {
+        int e = SSL_get_error(c->ssl, r);
+        if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
+            c->handshake_wants_write = e == SSL_ERROR_WANT_WRITE;
+            return;
+        }
+        long verify = SSL_get_verify_result(c->ssl);
+        if (verify != X509_V_OK)
+            snprintf(why, sizeof why, "certificate: %s", X509_verify_cert_error_string(verify));
+        else
+            snprintf(why, sizeof why, "%s", tls_error_text());
+        ERR_clear_error();
+        close_client(srv, c, EV_TLS_REFUSED, "%s", why);
         return;
     }
-    c->len += (size_t)n;
+    X509 *cert = SSL_get1_peer_certificate(c->ssl);
+    client_role_t role = ROLE_READ;
+    bool known = cert != NULL && certificate_role(srv, cert, &role, why, sizeof why);
+    if (cert)
+        certificate_cn(cert, c->cn, sizeof c->cn);
+    X509_free(cert);
+    if (!known) {
+        close_client(srv, c, EV_TLS_REFUSED, "cn \"%s\": %s", c->cn, cert ? why : "no certificate");
+        return;
+    }
+    c->role = role;
+    c->handshaking = c->handshake_wants_write = false;
+    c->partial_since_ns = 0;
+    note_event(srv, EV_TLS_AUTHENTICATED, c->peer, "%s, cn \"%s\", role %s", SSL_get_version(c->ssl), c->cn,
+               role_name(role));
+}
 
+/* recv() of a plain client, SSL_read() of a TLS one, with recv()'s results: 0 closed, -1 with errno
+ * (EAGAIN: nothing now; EPROTO: a TLS error, its reason in *why). */
+static ssize_t client_recv(client_t *c, uint8_t *buf, size_t n, const char **why)
+{
+    if (!c->ssl)
+        return recv(c->fd, buf, n, 0);
+    ERR_clear_error();
+    errno = 0;
+    int r = SSL_read(c->ssl, buf, (int)n);
+    if (r > 0)
+        return r;
+    switch (SSL_get_error(c->ssl, r)) {
+    case SSL_ERROR_WANT_READ:
+    case SSL_ERROR_WANT_WRITE:
+        errno = EAGAIN;
+        return -1;
+    case SSL_ERROR_ZERO_RETURN:
+        return 0;
+    case SSL_ERROR_SYSCALL:
+        if (errno == 0)
+            return 0;
+        return -1;
+    default:
+        *why = tls_error_text();
+        errno = EPROTO;
+        return -1;
+    }
+}
+
+/* Whether a TLS client has decrypted bytes waiting in OpenSSL (select() does not see them). */
+static bool tls_pending(const client_t *c)
+{
+    return c->ssl && !c->handshaking && c->unsent_since_ns == 0 && SSL_pending(c->ssl) > 0;
+}
+
+/* ------------------------------------------------------------- receive */
+
+/* Serve the complete requests in a client's buffer.  -1 when the client was closed. */
+static int take_frames(modbus_server_t *srv, client_t *c)
+{
     while (c->len >= MBAP_HEADER) {
         const unsigned protocol = be16(c->buf + 2);
         const unsigned length = be16(c->buf + 4);     /* unit id + PDU */
 
         if (protocol != 0) {
             close_client(srv, c, EV_NOT_MODBUS, "protocol id %u", protocol);
-            return;
+            return -1;
         }
         if (length < 2 || length > MBAP_MAX_LENGTH) {
             close_client(srv, c, EV_NOT_MODBUS, "MBAP length %u outside 2..%u", length, MBAP_MAX_LENGTH);
-            return;
+            return -1;
         }
         const unsigned frame = 6 + length;
         if (c->len < frame)
             break;                                /* wait for the rest */
         if (handle_frame(srv, c, c->buf, frame) < 0)
-            return;
+            return -1;
         memmove(c->buf, c->buf + frame, c->len - frame);
         c->len -= frame;
         c->partial_since_ns = 0;
@@ -761,6 +1017,27 @@ static void read_client(modbus_server_t *srv, client_t *c)
         c->partial_since_ns = 0;
     else if (c->partial_since_ns == 0)
         c->partial_since_ns = now_ns();
+    return 0;
+}
+
+static void read_client(modbus_server_t *srv, client_t *c)
+{
+    do {
+        const char *why = NULL;
+        ssize_t n = client_recv(c, c->buf + c->len, sizeof c->buf - c->len, &why);
+        if (n == 0) {
+            close_client(srv, c, EV_CLOSED, "%s", "");
+            return;
+        }
+        if (n < 0) {
+            if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
+                close_client(srv, c, EV_SOCKET_ERROR, "%s", why ? why : strerror(errno));
+            return;
+        }
+        c->len += (size_t)n;
+        if (take_frames(srv, c) < 0)
+            return;
+    } while (tls_pending(c));        /* a TLS record holds more than the buffer took */
 }
 
 /* Drop half-received requests and stalled readers whose time is up; return
@@ -791,6 +1068,10 @@ static uint64_t enforce_timeouts(modbus_server_t *srv, uint64_t t)
             }
         }
         if (c->partial_since_ns) {
+            if (t - c->partial_since_ns >= limit && c->handshaking) {
+                close_client(srv, c, EV_TLS_TIMEOUT, "after %llu ms", (unsigned long long)(limit / 1000000u));
+                continue;
+            }
             if (t - c->partial_since_ns >= limit) {
                 close_client(srv, c, EV_FRAME_TIMEOUT, "%zu bytes of a request after %llu ms", c->len,
                              (unsigned long long)(limit / 1000000u));
@@ -826,8 +1107,9 @@ static void *server_thread(void *arg)
     setup_priority(srv);
 
     for (;; srv->round++) {
-        fd_set rfds;
+        fd_set rfds, wfds;
         int top = srv->listen_fd > srv->wake[0] ? srv->listen_fd : srv->wake[0];
+        bool pending = false;                             /* a TLS client with bytes OpenSSL holds */
         uint64_t t = now_ns();
         uint64_t due = enforce_timeouts(srv, t);
         uint64_t flush = flush_events(srv, t, false);
@@ -849,18 +1131,31 @@ static void *server_thread(void *arg)
             wait = &tv;
         }
         FD_ZERO(&rfds);
+        FD_ZERO(&wfds);
         FD_SET(srv->listen_fd, &rfds);
         FD_SET(srv->wake[0], &rfds);
+        if (srv->tls_listen_fd >= 0) {
+            FD_SET(srv->tls_listen_fd, &rfds);
+            if (srv->tls_listen_fd > top)
+                top = srv->tls_listen_fd;
+        }
         for (int i = 0; i < max; i++) {
             /* A client that leaves its responses unread gets no more answers to build:
              * its requests wait in its own socket until it reads or the timeout drops it. */
-            if (srv->clients[i].fd >= 0 && srv->clients[i].unsent_since_ns == 0) {
-                FD_SET(srv->clients[i].fd, &rfds);
-                if (srv->clients[i].fd > top)
-                    top = srv->clients[i].fd;
+            const client_t *c = &srv->clients[i];
+            if (c->fd >= 0 && c->unsent_since_ns == 0) {
+                FD_SET(c->fd, c->handshake_wants_write ? &wfds : &rfds);
+                if (c->fd > top)
+                    top = c->fd;
+                pending = pending || tls_pending(c);
             }
         }
-        int ready = select(top + 1, &rfds, NULL, NULL, wait);
+        if (pending) {
+            tv.tv_sec = 0;
+            tv.tv_usec = 0;
+            wait = &tv;                                   /* serve them now, after a look at the sockets */
+        }
+        int ready = select(top + 1, &rfds, &wfds, NULL, wait);
         if (ready < 0) {
             if (errno == EINTR)
                 continue;
@@ -869,7 +1164,7 @@ static void *server_thread(void *arg)
             nanosleep(&pause, NULL);
             continue;
         }
-        if (ready == 0)
+        if (ready == 0 && !pending)
             continue;                                     /* a timeout is due */
         if (FD_ISSET(srv->wake[0], &rfds))
             break;
@@ -877,13 +1172,21 @@ static void *server_thread(void *arg)
         for (int pass = 0; pass < 2; pass++)
             for (int i = 0; i < max; i++) {
                 client_t *c = &srv->clients[i];
-                if (c->fd >= 0 && (c->served > 0) == (pass == 0) && FD_ISSET(c->fd, &rfds)) {
+                if (c->fd < 0 || (c->served > 0) != (pass == 0))
+                    continue;
+                if (FD_ISSET(c->fd, &rfds) || FD_ISSET(c->fd, &wfds) || tls_pending(c)) {
                     FD_CLR(c->fd, &rfds);
-                    read_client(srv, c);
+                    FD_CLR(c->fd, &wfds);
+                    if (c->handshaking)
+                        tls_handshake(srv, c);
+                    else
+                        read_client(srv, c);
                 }
             }
         if (FD_ISSET(srv->listen_fd, &rfds))
-            accept_clients(srv);
+            accept_clients(srv, srv->listen_fd, false);
+        if (srv->tls_listen_fd >= 0 && FD_ISSET(srv->tls_listen_fd, &rfds))
+            accept_clients(srv, srv->tls_listen_fd, true);
     }
 
     for (int i = 0; i < max; i++)
@@ -898,6 +1201,13 @@ static void destroy(modbus_server_t *srv)
 {
     if (srv->listen_fd >= 0)
         close(srv->listen_fd);
+    if (srv->tls_listen_fd >= 0)
+        close(srv->tls_listen_fd);
+    for (int i = 0; i < 2; i++)
+        if (srv->reply_pair[i] >= 0)
+            close(srv->reply_pair[i]);
+    SSL_CTX_free(srv->tls);
+    ASN1_OBJECT_free(srv->role_oid);
     if (srv->wake[0] >= 0)
         close(srv->wake[0]);
     if (srv->wake[1] >= 0)
@@ -910,13 +1220,12 @@ static void destroy(modbus_server_t *srv)
     free(srv);
 }
 
-int modbus_server_probe(runtime_t *rt)
+static int probe_address(runtime_t *rt, const char *addr, int port, const char *what)
 {
-    const rt_options_t *opt = &rt->opt;
-    struct sockaddr_in sa = { .sin_family = AF_INET, .sin_port = htons((uint16_t)opt->port) };
+    struct sockaddr_in sa = { .sin_family = AF_INET, .sin_port = htons((uint16_t)port) };
     int one = 1, fd, rc;
 
-    if (inet_pton(AF_INET, opt->bind, &sa.sin_addr) != 1)
+    if (inet_pton(AF_INET, addr, &sa.sin_addr) != 1)
         return 0;                   /* modbus_server_start names the bad address */
     fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
     if (fd < 0)
@@ -924,9 +1233,81 @@ int modbus_server_probe(runtime_t *rt)
     setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);     /* as libmodbus listens */
     rc = bind(fd, (struct sockaddr *)&sa, sizeof sa);
     if (rc != 0)
-        log_msg(rt->log, LOG_ERROR, "modbus: cannot listen on %s:%d: %s", opt->bind, opt->port, strerror(errno));
+        log_msg(rt->log, LOG_ERROR, "modbus: cannot listen%s on %s:%d: %s", what, addr, port, strerror(errno));
     close(fd);
     return rc == 0 ? 0 : -1;
+}
+
+int modbus_server_probe(runtime_t *rt)
+{
+    const rt_options_t *opt = &rt->opt;
+
+    if (probe_address(rt, opt->bind, opt->port, "") != 0)
+        return -1;
+    return opt->tls_cert ? probe_address(rt, opt->tls_bind, opt->tls_port, " for TLS") : 0;
+}
+
+/* The server's TLS context: its certificate and key, the CA a client's certificate must be signed by, TLS 1.2
+ * at least, no renegotiation, no session tickets or cache.  NULL (logged, naming the file) when one does not
+ * load. */
+static SSL_CTX *tls_context(runtime_t *rt)
+{
+    const rt_options_t *opt = &rt->opt;
+    const char *what = NULL, *file = "";
+    STACK_OF(X509_NAME) *names = NULL;
+
+    ERR_clear_error();
+    errno = 0;
+    SSL_CTX *ctx = SSL_CTX_new(TLS_server_method());
+    if (!ctx || SSL_CTX_set_min_proto_version(ctx, TLS1_2_VERSION) != 1)
+        what = "cannot create the TLS context";
+    else if (SSL_CTX_use_certificate_chain_file(ctx, opt->tls_cert) != 1)
+        what = "cannot load the server certificate (PEM) ", file = opt->tls_cert;
+    else if (SSL_CTX_use_PrivateKey_file(ctx, opt->tls_key, SSL_FILETYPE_PEM) != 1)
+        what = "cannot load the private key (PEM) ", file = opt->tls_key;
+    else if (SSL_CTX_check_private_key(ctx) != 1)
+        what = "the private key does not belong to the server certificate: ", file = opt->tls_key;
+    else if (SSL_CTX_load_verify_locations(ctx, opt->tls_ca, NULL) != 1 || !(names = SSL_load_client_CA_file(opt->tls_ca)))
+        what = "cannot load the CA certificate(s) (PEM) ", file = opt->tls_ca;
+    if (what) {
+        log_msg(rt->log, LOG_ERROR, "modbus: TLS: %s%s: %s", what, file, tls_error_text());
+        SSL_CTX_free(ctx);
+        return NULL;
+    }
+    SSL_CTX_set_client_CA_list(ctx, names);
+    SSL_CTX_set_verify(ctx, SSL_VERIFY_PEER | SSL_VERIFY_FAIL_IF_NO_PEER_CERT, NULL);
+    SSL_CTX_set_options(ctx, SSL_OP_NO_RENEGOTIATION | SSL_OP_IGNORE_UNEXPECTED_EOF | SSL_OP_NO_TICKET);
+    SSL_CTX_set_num_tickets(ctx, 0);
+    SSL_CTX_set_session_cache_mode(ctx, SSL_SESS_CACHE_OFF);
+    return ctx;
+}
+
+int modbus_server_check_tls(runtime_t *rt)
+{
+    if (!rt->opt.tls_cert)
+        return 0;
+    SSL_CTX *ctx = tls_context(rt);
+    SSL_CTX_free(ctx);
+    return ctx ? 0 : -1;
+}
+
+/* The TLS listener's socket (non-blocking), or -1 (logged). */
+static int listen_tls(runtime_t *rt)
+{
+    const rt_options_t *opt = &rt->opt;
+    struct sockaddr_in sa = { .sin_family = AF_INET, .sin_port = htons((uint16_t)opt->tls_port) };
+    int one = 1, fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+
+    if (fd < 0 || inet_pton(AF_INET, opt->tls_bind, &sa.sin_addr) != 1
+        || setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0
+        || bind(fd, (struct sockaddr *)&sa, sizeof sa) != 0 || listen(fd, LISTEN_BACKLOG) != 0) {
+        log_msg(rt->log, LOG_ERROR, "modbus: cannot listen for TLS on %s:%d: %s", opt->tls_bind, opt->tls_port,
+                strerror(errno));
+        if (fd >= 0)
+            close(fd);
+        return -1;
+    }
+    return fd;
 }
 
 int modbus_server_start(runtime_t *rt, modbus_server_t **out)
@@ -943,6 +1324,7 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
     srv->rt = rt;
     srv->frame_timeout_ns = (uint64_t)opt->frame_timeout_ms * 1000000u;
     srv->listen_fd = srv->wake[0] = srv->wake[1] = -1;
+    srv->tls_listen_fd = srv->reply_pair[0] = srv->reply_pair[1] = -1;
     srv->clients = calloc((size_t)opt->max_clients, sizeof *srv->clients);
     if (!srv->clients) {
         destroy(srv);
@@ -996,6 +1378,27 @@ int modbus_server_start(runtime_t *rt, modbus_server_t **out)
     log_msg(rt->log, LOG_INFO, "modbus: listening on %s:%u (max %d clients, clients allowed from %s, "
             "frame timeout %d ms%s)", opt->bind, ntohs(bound.sin_port), opt->max_clients, allow_text,
             opt->frame_timeout_ms, opt->read_only ? ", READ-ONLY: every write refused" : "");
+
+    if (opt->tls_cert) {
+        srv->role_oid = OBJ_txt2obj(MBAPS_ROLE_OID, 1);
+        srv->tls = tls_context(rt);
+        if (!srv->role_oid || !srv->tls || (srv->tls_listen_fd = listen_tls(rt)) < 0) {
+            destroy(srv);
+            return -1;
+        }
+        if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, srv->reply_pair) != 0) {
+            log_msg(rt->log, LOG_ERROR, "modbus: socketpair: %s", strerror(errno));
+            destroy(srv);
+            return -1;
+        }
+        fcntl(srv->reply_pair[1], F_SETFL, fcntl(srv->reply_pair[1], F_GETFL) | O_NONBLOCK);
+        blen = sizeof bound;
+        getsockname(srv->tls_listen_fd, (struct sockaddr *)&bound, &blen);
+        log_msg(rt->log, LOG_INFO, "modbus: TLS (Modbus/TCP Security) on %s:%u: TLS 1.2 or later, client "
+                "certificates signed by %s, role from their extension " MBAPS_ROLE_OID " (read, host or engineer; "
+                "none: refused), the same %d slots and %d ms for a handshake", opt->tls_bind, ntohs(bound.sin_port),
+                opt->tls_ca, opt->max_clients, opt->frame_timeout_ms);
+    }
 
     update_counters(srv);
     if (pthread_create(&srv->thread, NULL, server_thread, srv) != 0) {

@@ -101,7 +101,7 @@ enum diag_offset {
     DIAG_CLIENTS = 34,         /* u16: Modbus clients connected */
     DIAG_REQUESTS = 36,        /* u32: Modbus requests answered */
     DIAG_EXCEPTIONS = 38,      /* u32: of those, exception responses */
-    DIAG_REFUSED = 40,         /* u32: connections refused (allowlist, limit) */
+    DIAG_REFUSED = 40,         /* u32: connections refused (allowlist, limit, TLS handshake or role) */
     DIAG_RETAIN_SAVES = 42,    /* u32: retain files written */
     DIAG_SCAN_P50_US = 44,     /* u32 */
     DIAG_WAKE_P50_US = 46,     /* u32 */
@@ -274,6 +274,12 @@ typedef struct rt_options {
     const char *audit_path;        /* every write and force appended here (NULL: log only) */
     const char *events_path;       /* description the application's events read (--events; NULL: none) */
     int sim_flag_bit;              /* --sim-flag %IXa.b: the discrete input the sim layer raises (-1: none) */
+    /* Modbus/TCP Security (MBAPS): a TLS listener beside the plain one, on when tls_cert is given */
+    const char *tls_cert;          /* the server's certificate (PEM, chain allowed) */
+    const char *tls_key;           /* its private key (PEM) */
+    const char *tls_ca;            /* the CA(s) a client's certificate must be signed by (PEM) */
+    char tls_bind[64];             /* default: --bind */
+    int tls_port;                  /* default 802; 0: any free port (logged) */
 } rt_options_t;
 
 /* ------------------------------------------------------------ statistics */
@@ -419,6 +425,9 @@ uint64_t now_ns(void);
 /* 0 when the Modbus address can be bound now; -1 (logged) when not, e.g. the port is in use: checked before
  * anything is written, so a runtime that cannot serve leaves no retain file behind. */
 int modbus_server_probe(runtime_t *rt);
+/* 0 when there is no TLS listener or its certificate, key and CA load and match; -1 (logged, with the file)
+ * when not.  Checked at start-up before anything is written, as the port. */
+int modbus_server_check_tls(runtime_t *rt);
 int modbus_server_start(runtime_t *rt, modbus_server_t **out);
 void modbus_server_stop(modbus_server_t *srv);
 
