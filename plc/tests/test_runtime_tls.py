@@ -264,6 +264,16 @@ def test_a_plain_client_on_the_tls_port_and_a_silent_one_are_dropped(pki):
         rt.wait_for(rf"dropped: TLS handshake not done within the frame timeout \[after {FRAME_TIMEOUT_MS} ms\]")
 
 
+def test_tls_clients_take_the_slots_of_max_clients_with_the_plain_ones(pki):
+    with start(pki, "--max-clients", "2") as rt, h.Client(rt.port) as plain:
+        assert plain.read_holding(1024 + 30) == [4242]             # served: it keeps its slot
+        with TlsClient(pki, "read", rt.tls_port) as tls:
+            assert tls.read_holding(1024 + 30) == [4242]           # the second slot, served over TLS
+            refused(pki, "engineer", rt.tls_port)                  # a third: no slot left
+            rt.wait_for(r"client 127\.0\.0\.1:\d+ refused: every slot holds a served client \[limit of 2 clients")
+            assert tls.read_holding(1024 + 30) == [4242] and plain.read_holding(1024 + 30) == [4242]
+
+
 # ------------------------------------------------------------------- the fuzz corpus over TLS
 
 CORPUS = fz.load_corpus()

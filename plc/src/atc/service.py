@@ -387,7 +387,8 @@ configuration and the systemd unit `{name}.service`.
     systemctl status {name}
     journalctl -u {name} -f      # the runtime's log, with its priorities (journalctl -p warning)
 
-The machine needs `libmodbus` (copied into `releases/*/lib/`) and glibc; no compiler. The retained data (tool
+The machine needs `libmodbus` (copied into `releases/*/lib/`), OpenSSL's `libssl3` (Debian's, the runtime's
+TLS listener links it) and glibc; no compiler. The retained data (tool
 in the spindle, pocket table) live in `/var/lib/{name}/{retain}`.
 
 The monitor channel (`plc monitor`, `plc hmi`) is the socket `/run/{name}/plc.monitor`; writes and forces need the
