@@ -448,10 +448,38 @@ def test_plc_tls_makes_a_ca_a_server_and_a_client_certificate_with_its_role(tmp_
     assert helped.returncode == 0 and "Exit status: 0 the files were written" in helped.stdout
 
 
-def test_a_service_release_refuses_tls_until_it_carries_the_files(pki, tmp_path):
-    from atc import service
+def test_a_service_release_carries_the_tls_files_and_its_run_script_names_them_there(pki, tmp_path):
+    """plc deploy service copies [modbus.tls]'s three files into the release (the key mode 0600) and the release's
+    run script names them there: the runtime started from it serves TLS with nothing pointing back here."""
     config = tmp_path / "runtime.toml"
-    config.write_text(f'[modbus.tls]\ncert = "{pki}/server.pem"\nkey = "{pki}/server.key"\nca = "{pki}/ca.pem"\n')
-    with pytest.raises(service.DeployError) as e:
-        service.load_run_config(config)
-    assert str(e.value).startswith(f"{config}: [modbus.tls]: a release does not carry the TLS certificate")
+    config.write_text(f'[modbus]\nport = 5020\n\n[modbus.tls]\ncert = "{pki}/server.pem"\nkey = "{pki}/server.key"\n'
+                      f'ca = "{pki}/ca.pem"\nport = 8802\n')
+    out, src = tmp_path / "deploy", tmp_path / "src"          # a small program outside the project: built fast
+    src.mkdir()
+    (src / "main.st").write_text("PROGRAM Main\nVAR n AT %QW0 : INT; END_VAR\nn := n + 1;\nEND_PROGRAM\n"
+                                 + h.MAIN_EVERY_4MS)
+    deploy = [sys.executable, "-m", "plc.cli", "deploy", "service", "--src", str(src), "--config", str(config),
+              "--simulated"]
+    refused = subprocess.run([*deploy, "--out", str(tmp_path / "other"), "--user", "plc"], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=300 * h.SLOW)
+    assert refused.returncode == 2 and "[modbus.tls] with --user plc: not done yet" in refused.stderr
+    assert not (tmp_path / "other").exists()
+    result = subprocess.run([*deploy, "--out", str(out), "--prefix", str(out)], cwd=tmp_path, capture_output=True,
+                            text=True, timeout=300 * h.SLOW)
+    assert result.returncode == 0, result.stderr
+    release = (out / "current").resolve()
+    assert {f.name: f.stat().st_mode & 0o777 for f in (release / "tls").iterdir()} == {
+        "server.pem": 0o644, "server.key": 0o600, "ca.pem": 0o644}
+    assert (release / "tls" / "server.key").read_bytes() == (pki / "server.key").read_bytes()
+    script = (release / "run").read_text()
+    assert '--tls-cert "$here/tls/server.pem" --tls-key "$here/tls/server.key" --tls-ca "$here/tls/ca.pem"' in script
+    assert "--tls-port 8802" in script and str(pki) not in script
+    state = tmp_path / "state"
+    state.mkdir()
+    rt = h.Runtime(release / "run", "--port", "0", "--tls-port", "0", "--no-rt", "--status", "log", raw=True,
+                   env={"STATE_DIRECTORY": str(state), "RUNTIME_DIRECTORY": str(state)})
+    try:
+        rt.wait_for(r"modbus: TLS \(Modbus/TCP Security\) on 127\.0\.0\.1:\d+: TLS 1\.2 or later, client "
+                    rf"certificates signed by {re.escape(str(release / 'tls' / 'ca.pem'))}")
+    finally:
+        rt.stop()

@@ -157,9 +157,10 @@ def _libmodbus(binary: Path) -> Path | None:
 
 def runtime_argv(cfg: runtime.RunConfig) -> list[str]:
     """The runtime's options for a service (no binary). The retain file and the monitor's files are set by the
-    run script, in the service's own directories: nothing points back into the checkout it was built from."""
+    run script, in the service's own directories, and the TLS files in the release's tls/: nothing points back
+    into the checkout it was built from."""
     argv = runtime.runtime_argv(Path("plc-runtime"), cfg)[1:]
-    for option in ("--retain", "--monitor", "--monitor-token", "--audit"):
+    for option in ("--retain", "--monitor", "--monitor-token", "--audit", "--tls-cert", "--tls-key", "--tls-ca"):
         if option in argv:
             i = argv.index(option)
             del argv[i:i + 2]
@@ -188,6 +189,9 @@ state=${{STATE_DIRECTORY:-/var/lib/{name}}}
 
 
 EVENTS_ARGS = ' --events "$here/events.txt"'
+# [modbus.tls]: the run configuration's certificate, key and CA, copied into the release (the key mode 0600)
+TLS_FILES = (("tls_cert", "server.pem", 0o644), ("tls_key", "server.key", 0o600), ("tls_ca", "ca.pem", 0o644))
+TLS_ARGS = ' --tls-cert "$here/tls/server.pem" --tls-key "$here/tls/server.key" --tls-ca "$here/tls/ca.pem"'
 
 
 def _application_setup(sources: list[Path], work: Path) -> RunSetup:
@@ -207,9 +211,6 @@ def load_run_config(config: Path | None) -> runtime.RunConfig:
         cfg = runtime.load_config(config) if config else runtime.RunConfig()
     except runtime.ConfigError as exc:
         raise DeployError(str(exc)) from None
-    if cfg.tls_cert is not None:         # its files would stay in the checkout, outside the release: refused
-        raise DeployError(f"{config}: [modbus.tls]: a release does not carry the TLS certificate, key and CA yet "
-                          "(README, \"Hardening the Modbus front end\"); deploy without [modbus.tls]")
     return cfg
 
 
@@ -250,12 +251,22 @@ def build_release(prefix: Path, sources: list[Path], config: Path | None, cfg: r
     lib = _libmodbus(work / "plc-runtime")
     if lib is not None:
         shutil.copy2(lib, work / "lib" / lib.name)
+    if cfg.tls_cert is not None:
+        try:
+            (work / "tls").mkdir()
+            for field, fname, mode in TLS_FILES:
+                shutil.copyfile(getattr(cfg, field), work / "tls" / fname)
+                os.chmod(work / "tls" / fname, mode)
+        except OSError as exc:
+            shutil.rmtree(work, ignore_errors=True)
+            raise DeployError(f"[modbus.tls]: cannot copy {exc.filename} into the release: {exc.strerror}") from None
     args = runtime_argv(cfg)
     monitor = cfg.monitor
     (work / "run").write_text(RUN_SCRIPT.format(name=name, retain=RETAIN_FILE,
                                                 monitor=MONITOR_RUN if monitor else "",
                                                 monitor_args=(MONITOR_ARGS if monitor else "") +
-                                                (EVENTS_ARGS if setup.events_file is not None else ""),
+                                                (EVENTS_ARGS if setup.events_file is not None else "") +
+                                                (TLS_ARGS if cfg.tls_cert is not None else ""),
                                                 args=" ".join(shlex.quote(a) for a in args)))
     os.chmod(work / "run", 0o755)
     if config:
@@ -549,6 +560,11 @@ def cmd_service(args) -> int:
     sources = _sources(args)
     config = _config(args, sources)
     cfg = service_io(config, load_run_config(config), args.simulated, "service")
+    if cfg.tls_cert is not None and args.user:
+        # the key is root's (mode 0600) and port 802 is below 1024: a service user could read neither
+        raise DeployError(f"{config}: [modbus.tls] with --user {args.user}: not done yet (the service user would "
+                          "need the TLS key and, below port 1024, CAP_NET_BIND_SERVICE); deploy it as root: "
+                          "nothing written")
     out: Path = args.out.resolve()
     prefix = (args.prefix or Path("/opt") / args.name).resolve()
     if (out / "current").exists():
