@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from plc import buildcache
-from plc.codegen import generate, generate_units
+from plc.codegen import PieceMemo, generate, generate_units
 from plc.diagnostics import Diagnostics
 from plc.driver import compile_sources
 from plc.parser import parse_text
@@ -212,7 +212,7 @@ def test_plc_test_keeps_the_cache_in_the_projects_build_directory(tmp_path):
     assert first.returncode == 0, first.stdout + first.stderr
     assert (tmp_path / "build" / "plc-cache" / "obj").is_dir() and (tmp_path / "build" / "plc-cache" / "parse").is_dir()
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
-    assert "(0 C unit(s) compiled, the others from the cache)" in again.stdout, again.stdout
+    assert "(0 C unit(s) compiled, the others from the cache; the C of 0 of " in again.stdout, again.stdout
     assert again.stdout.splitlines()[-1] == first.stdout.splitlines()[-1] == "1 passed, 0 failed"
 
 
@@ -280,3 +280,39 @@ def test_a_toml_file_read_before_is_loaded_from_the_cache_with_its_places(tmp_pa
         assert cache.misses == 5 and cache.hits == 1
     finally:
         buildcache.use(before.root if before is not None else None)
+
+
+def test_the_c_of_the_pous_an_edit_leaves_alone_comes_from_the_memo_and_equals_the_c_written_afresh(tmp_path):
+    """plc test writes again the C of the POUs an edit can change (codegen.PieceMemo) and takes the others' from
+    the cache: after each edit the units and the site table are those of a generation without the memo; a body or
+    a function's own constant rewrites that function only, a TYPE or an FB's variables rewrite every POU."""
+    src, tests = project(tmp_path)
+    cache = buildcache.Cache(tmp_path / "cache")
+
+    def generate_both() -> list[str]:
+        res = compile_sources([str(src), str(tests)], test_build=True, generate=False)
+        assert res.ok, [d.render() for d in res.diags.errors]
+        known = len(res.program.sites)
+        memo = PieceMemo(cache, res.texts, res.files, test_build=True)
+        with_memo = generate_units(res.program, test_build=True, memo=memo)
+        sites_memo = [(s.pos, s.pou) for s in res.program.sites]
+        del res.program.sites[known:]
+        afresh = generate_units(res.program, test_build=True)
+        assert with_memo == afresh
+        assert sites_memo == [(s.pos, s.pou) for s in res.program.sites]
+        return memo.written
+
+    everything = generate_both()
+    assert {"F_TWICE", "FB_CLAMP", "TEST_CLAMPKEEPSTHELIMITS", "TON"} <= set(everything)
+    assert generate_both() == []                                    # nothing changed: every POU from the memo
+    (src / "F_Twice.st").write_text(TWICE.replace("x * 2", "x * 3"))
+    assert generate_both() == ["F_TWICE"]                           # a body
+    (src / "F_Twice.st").write_text(TWICE.replace("END_VAR\n", "END_VAR\nVAR CONSTANT\n    k : INT := 3;\nEND_VAR\n")
+                                    .replace("x * 2", "x * k"))
+    assert generate_both() == ["F_TWICE"]                           # a function's own constant
+    (src / "ST_Limits.st").write_text("(* limits *)\n" + TYPES)
+    assert generate_both() == []                                    # a comment: the declarations are the same
+    (src / "ST_Limits.st").write_text(TYPES.replace("high : INT := 9;", "high : INT := 8;"))
+    assert sorted(generate_both()) == sorted(everything)            # a TYPE
+    (src / "FB_Clamp.st").write_text(CLAMP.replace("VAR_OUTPUT", "VAR\n    calls : INT;\nEND_VAR\nVAR_OUTPUT"))
+    assert sorted(generate_both()) == sorted(everything)            # an FB's own variables (its layout)

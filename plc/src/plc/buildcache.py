@@ -37,7 +37,7 @@ from .diagnostics import Diagnostics
 
 CACHE_DIR = Path("build") / "plc-cache"
 MAGIC = b"plc-cache 1\n"
-KINDS = ("parse", "toml", "obj")      # the directories of entries, each an entry kind
+KINDS = ("parse", "toml", "iface", "cpiece", "obj")      # the directories of entries, each an entry kind
 DEFAULT_MAX_MB = 256
 
 _active: Cache | None = None
@@ -104,6 +104,7 @@ class Cache:
         self.hits = 0
         self.misses = 0
         self.compiled: list[str] = []      # the units compile_units compiled (not found in the cache), by name
+        self.written = (0, 0)               # of a test build: the POUs whose C was written (not memoised), of all
 
     # -------------------------------------------------------------- entries --
     def _path(self, kind: str, key: str, suffix: str) -> Path:

@@ -17,9 +17,13 @@ recompiles only the units whose text it changes (buildcache).
 """
 from __future__ import annotations
 
+import hashlib
+import pickle
 import re
 
+from . import ast as A
 from . import types as T
+from .buildcache import sha256, toolchain_digest
 from .cgen.base import MAIN_UNIT, SITES_UNIT, STATIC, TYPES_UNIT, GenBase, cid, unit_id
 from .cgen.calls import CallGen
 from .cgen.config import ConfigGen
@@ -28,6 +32,7 @@ from .cgen.expressions import ExpressionGen
 from .cgen.init import InitGen
 from .cgen.statements import StatementGen
 from .cgen.types import TypeGen
+from .diagnostics import Pos
 from .passes.context import Program
 
 
@@ -130,12 +135,9 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
                 with self.piece(unit=TYPES_UNIT):
                     self.agg_init(t)
         for pt in self.p.pous.values():
-            with self.piece(unit=pt.pou.pos.file):
-                self.pou_init(pt)
-                self.pou_body(pt)
+            self.definition(pt.pou, lambda pt=pt: (self.pou_init(pt), self.pou_body(pt)))
         for fs in self.p.funcs.values():
-            with self.piece(unit=fs.pou.pos.file):
-                self.func_def(fs)
+            self.definition(fs.pou, lambda fs=fs: self.func_def(fs))
         with self.piece(unit=MAIN_UNIT):
             self.config()
         if self.test_build:
@@ -144,6 +146,20 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
             self.emit_sites()           # last: generating the bodies numbered the sites (declared at the top)
             if split:
                 self.emit_site_maps()
+
+    def definition(self, pou: A.Pou, write) -> None:
+        """The definitions of one POU (write() writes them) as a piece of its file's unit; in a split build with a
+        PieceMemo, its lines and sites from the memo when the memo holds them (PieceMemo says when)."""
+        unit = pou.pos.file
+        with self.piece(unit=unit):
+            memo = self.memo
+            key = memo.key(unit, pou) if memo is not None else None
+            if key is not None and memo.replay(self, key, unit):
+                return
+            start, known, before = len(self.out), len(self.p.sites), len(self.unit_sites.get(unit, ()))
+            write()
+            if key is not None:
+                memo.store(self, key, pou, self.out[start:], known, self.unit_sites.get(unit, [])[before:])
 
     # ------------------------------------------------------------ split build --
     def units(self) -> list[tuple[str, str]]:
@@ -185,12 +201,124 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
         return out
 
 
+class PieceMemo:
+    """The C of a POU's definitions (a split build's piece) and the sites it numbered, kept in the build cache, so
+    that after an edit the generator writes again only what the edit can change (issue 33).
+
+    An entry is keyed by the generator's and the semantic passes' sources, the build kind, the POU's file (its
+    name and its whole text: an edit anywhere in the file writes all its POUs again) and `interface`: a digest of
+    every file's declarations, as parsed, without positions, POU bodies, or the local variables and constants of
+    FUNCTIONs, which nothing outside the function can name (interface_digest).  So an edit of a body or of a
+    function's locals writes its own file's POUs again and takes every other file's from the memo; an edit of a
+    TYPE, an FB's or PROGRAM's variables, a function's interface, a global or the configuration writes every
+    POU again.  A file without a known text (none given for it) is never memoised.
+
+    A piece's site references are local (the unit's site map), so its text does not depend on the sites of other
+    units; the sites themselves are replayed in order: the ones it numbered are numbered again, the ones the
+    semantic passes numbered (assertions) are found again by position, and an entry whose assertion site is not
+    found is not used."""
+
+    def __init__(self, cache, texts: dict[str, str], files: list[A.SourceFile], test_build: bool) -> None:
+        self.cache = cache
+        self.files = {name: sha256(text) for name, text in texts.items()}
+        generator = sha256(toolchain_digest("codegen.py"), toolchain_digest("sema.py"))
+        self.base = sha256("cpiece", generator, str(bool(test_build)),
+                           *(self.interface(f, generator) for f in files))
+        self.written: list[str] = []    # the POUs generated (not found in the memo), by name
+        self.replayed = 0               # how many came from the memo
+        self._sema_sites: dict[tuple, int] | None = None
+
+    def interface(self, f: A.SourceFile, generator: str) -> str:
+        """interface_digest of one file, from the cache when its text was met before (a file's tree is a function
+        of its name, its text and the parser: the parse cache's premise)."""
+        text = self.files.get(f.path)
+        if text is None:
+            return interface_digest([f])
+        key = sha256("iface", generator, toolchain_digest("parser.py"), f.path, text)
+        return self.cache.value("iface", key, lambda: interface_digest([f]))
+
+    def key(self, unit: str, pou: A.Pou) -> str | None:
+        text = self.files.get(unit)
+        return None if text is None else sha256(self.base, unit, text, pou.kind, pou.name)
+
+    def store(self, gen: Gen, key: str, pou: A.Pou, lines: list[str], known: int, used: list[int]) -> None:
+        """Keep the lines of `pou`'s piece just written; `known` sites existed before it, `used` are the site
+        numbers its text refers to (its entries of the unit's site map), in order."""
+        self.written.append(pou.name)
+        sites = gen.p.sites
+        made = [(s.pos, s.pou) for s in sites[known:]]
+        refs = [("made", n - known) if n >= known else ("sema", sites[n].pos, sites[n].pou) for n in used]
+        self.cache.store("cpiece", key, pickle.dumps((lines, made, refs), protocol=pickle.HIGHEST_PROTOCOL))
+
+    def replay(self, gen: Gen, key: str, unit: str) -> bool:
+        """Write the kept piece under `key` as if generated now: False (nothing written) when there is none."""
+        payload = self.cache.load("cpiece", key)
+        if payload is None:
+            return False
+        try:
+            lines, made, refs = pickle.loads(payload)
+        except Exception:               # an entry that does not load is a miss, whatever broke it
+            return False
+        if self._sema_sites is None:    # the sites the passes numbered: all there are before generation writes
+            self._sema_sites = {}
+            for n, s in enumerate(gen.p.sites):
+                self._sema_sites.setdefault((s.pos, s.pou), n)
+        found = [self._sema_sites.get((r[1], r[2])) for r in refs if r[0] == "sema"]
+        if None in found:
+            return False
+        first = len(gen.p.sites)
+        for pos, pou in made:
+            gen.p.site(pos, pou)
+        sema = iter(found)
+        if refs:
+            gen.unit_sites.setdefault(unit, []).extend(first + r[1] if r[0] == "made" else next(sema) for r in refs)
+        gen.out.extend(lines)
+        self.replayed += 1
+        return True
+
+
+# the sections of a FUNCTION its callers see; its other blocks (VAR, VAR_TEMP, constants) are its own
+INTERFACE = ("VAR_INPUT", "VAR_OUTPUT", "VAR_IN_OUT")
+
+
+def interface_digest(files: list[A.SourceFile]) -> str:
+    """A digest of every declaration of the program as parsed (types, POU headers and variables, globals, the
+    configuration), without positions, POU bodies, or a FUNCTION's own blocks (INTERFACE)."""
+    out: list[str] = []
+
+    def dump(v) -> None:
+        if isinstance(v, A.Node):
+            out.append(type(v).__name__)
+            pou = v if isinstance(v, A.Pou) else None
+            for name, value in A.child_fields(v):
+                if name in ("pos", "end_pos", "facts") or (pou is not None and name == "body"):
+                    continue
+                if pou is not None and name == "blocks" and pou.kind == "FUNCTION":
+                    value = [b for b in value if b.section in INTERFACE]
+                out.append(name)
+                dump(value)
+        elif isinstance(v, (list, tuple)):
+            out.append("[")
+            for item in v:
+                dump(item)
+            out.append("]")
+        elif not isinstance(v, Pos):
+            out.append(repr(v))
+
+    for f in files:
+        dump(f)
+    return hashlib.sha256("\0".join(out).encode()).hexdigest()
+
+
 def generate(prog: Program, test_build: bool = False) -> str:
     """The program as one C translation unit (plc build, plc run: every call can be inlined)."""
     return Gen(prog, test_build).generate()
 
 
-def generate_units(prog: Program, test_build: bool = False) -> list[tuple[str, str]]:
+def generate_units(prog: Program, test_build: bool = False, memo: PieceMemo | None = None) -> list[tuple[str, str]]:
     """The program as (name, C text) translation units, one per source file and two more (plc test: an edit
-    recompiles only the units whose text it changes)."""
-    return Gen(prog, test_build, split=True).units()
+    recompiles only the units whose text it changes); with a PieceMemo, only the POUs an edit can change are
+    written again."""
+    gen = Gen(prog, test_build, split=True)
+    gen.memo = memo
+    return gen.units()

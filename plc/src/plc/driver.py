@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import ast as A
-from . import buildcache, sema
+from . import buildcache, plcopen, sema
 from .codegen import generate as gen_c
 from .diagnostics import Diagnostics, SourceSet
 from .parser import parse
@@ -43,6 +43,7 @@ class CompileResult:
     files: list[A.SourceFile] = field(default_factory=list)
     program: object = None
     c_text: str | None = None
+    texts: dict[str, str] = field(default_factory=dict)     # the ST text of each file parsed, by its name
 
     @property
     def ok(self) -> bool:
@@ -51,10 +52,7 @@ class CompileResult:
 
 def is_source(path: Path) -> bool:
     """A source file the compiler reads: ST, or a PLCopen XML project."""
-    if path.suffix.lower() == ".st":
-        return True
-    from . import plcopen      # the XML front end (and lxml) is imported only for a project that has XML
-    return plcopen.looks_like_plcopen(path)
+    return path.suffix.lower() == ".st" or plcopen.looks_like_plcopen(path)
 
 
 def collect_files(paths: list[str | os.PathLike]) -> list[Path]:
@@ -117,7 +115,6 @@ def load_user_file(path: Path, diags: Diagnostics, sources: SourceSet):
         return name, read_source(path), None
     data = read_bytes(path)
     sources.add(name, decode(data))
-    from . import plcopen
     tr = plcopen.translate(name, data, diags)
     if tr is None:
         return name, None, None
@@ -199,13 +196,14 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
         builtins.add(name)
         inputs.append((name, read_source(f)))
     inputs.extend(user_inputs)
-    for name, text in inputs:
-        sources.add(name, text)
-        result.files.append(parse(text, name, diags))
     if test_build:
-        name, text = ENUM_ASSERTS, enum_asserts(result.files)
-        builtins.add(name)
+        inputs.append((ENUM_ASSERTS, None))         # written from the others' types, once they are parsed
+    for name, text in inputs:
+        if text is None:
+            text = enum_asserts(result.files)
+            builtins.add(name)
         sources.add(name, text)
+        result.texts[name] = text
         result.files.append(parse(text, name, diags))
     prog = analyze(result.files, diags, builtins, test_build=test_build)
     result.program = prog

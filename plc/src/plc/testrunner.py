@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import buildcache, testcases
-from .codegen import generate_units
+from .codegen import PieceMemo, generate_units
 from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, compile_units, content_hash,
                      deep_recursion, paused_gc, print_diagnostics)
 from .project import Preflight, add_view_options, beside_preflight, project_root
@@ -85,8 +85,12 @@ def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, 
     if not res.ok:
         raise TestBuildError(len(res.diags.errors))
     cache = cache or buildcache.active() or buildcache.Cache(build_dir / "cache")
-    # the C generator recurses over expressions like the passes: the same stack allowance (parser.MAX_OPERATORS)
-    units = [buildcache.Unit(name, text) for name, text in deep_recursion(generate_units)(res.program, test_build=True)]
+    # the POUs of the files an edit leaves alone come from the cache as C (codegen.PieceMemo); the C generator
+    # recurses over expressions like the passes: the same stack allowance (parser.MAX_OPERATORS)
+    memo = PieceMemo(cache, res.texts, res.files, test_build=True)
+    units = [buildcache.Unit(name, text)
+             for name, text in deep_recursion(generate_units)(res.program, test_build=True, memo=memo)]
+    cache.written = (len(memo.written), len(memo.written) + memo.replayed)
     units += [buildcache.Unit(f.stem, f.read_text()) for f in (STDLIB / "test_main.c", SCAN_CORE[0])]
     flags = ["-std=c99", "-Wall", "-Wextra", "-Werror", optimize, f"-I{INCLUDE}", f"-I{RUNTIME_SRC}"]
     # a unit the C compiler refuses is the compiler's bug: exit 3, the C and the output kept in build_dir/c
@@ -277,9 +281,10 @@ def _test(args) -> int:
         pat = args.k.lower()
         selected = [i for i in selected if pat in tests[i].name.lower() or fnmatch.fnmatch(tests[i].name.lower(), pat)]
     if args.verbose:
-        compiled = len(buildcache.active().compiled)
-        print(f"built {sum(t.runnable for t in tests)} test(s) in {t_build:.2f}s ({compiled} C unit(s) compiled, "
-              f"the others from the cache) -> {exe}")
+        cache = buildcache.active()
+        written, pous = cache.written
+        print(f"built {sum(t.runnable for t in tests)} test(s) in {t_build:.2f}s ({len(cache.compiled)} C unit(s) "
+              f"compiled, the others from the cache; the C of {written} of {pous} POU(s) written) -> {exe}")
     sites = res.program.sites
 
     def on_result(r: TestResult) -> None:

@@ -89,6 +89,7 @@ class GenBase:
         self.pieces: list[Piece] = []                       # marks over `out`
         self.unit: str | None = None                        # the unit being written (split build)
         self.unit_sites: dict[str, list[int]] = {}          # per unit, the sites its text names, in order
+        self.memo = None                                    # a split build's codegen.PieceMemo, if any
         self.out: list[str] = []
         self.ind = 0
         self.fn: FuncSym | None = None        # FUNCTION being generated
