@@ -5,7 +5,8 @@ A session: start the runtime (the ASan/UBSan build unless told otherwise), repla
 regression corpus (modbus_corpus.txt: every entry must have exactly its recorded outcome),
 fire N mutated frames at it with mbfuzz.c, replay the corpus again, check a valid request
 is still answered, stop it with SIGTERM and check the exit status and the log for
-sanitizer reports.
+sanitizer reports.  With `tls` the runtime also serves Modbus/TCP Security, and the corpus
+is replayed over TLS too, before and after the frames (an engineer's client certificate).
 """
 
 from __future__ import annotations
@@ -123,6 +124,7 @@ class FuzzReport:
     dropped: int = 0                           # connections the server closed
     corpus_entries: int = 0
     corpus_failures: list[str] = field(default_factory=list)
+    tls_replays: int = 0                       # corpus entries replayed over TLS (0: no TLS listener)
     valid_request_after: bool = False
     exit_status: int | None = None
     sanitizer_findings: int = 0
@@ -134,17 +136,55 @@ class FuzzReport:
                 and self.sanitizer_findings == 0)
 
 
+def tls_files(directory: Path) -> dict[str, Path]:
+    """A CA, the runtime's certificate and an engineer's client certificate (plc.tlscerts), made once."""
+    from plc import tlscerts
+    names = {n: directory / f"{n}.pem" for n in ("ca", "server", "client")}
+    names.update(server_key=directory / "server.key", client_key=directory / "client.key")
+    if not names["client_key"].exists():
+        ca = tlscerts.make_ca("fuzz CA")
+        tlscerts.write_pair(ca, names["ca"], directory / "ca.key", force=True)
+        tlscerts.write_pair(tlscerts.make_leaf(ca, "plc", server=True, ips=["127.0.0.1"]), names["server"],
+                            names["server_key"], force=True)
+        tlscerts.write_pair(tlscerts.make_leaf(ca, "fuzz", role="engineer"), names["client"], names["client_key"],
+                            force=True)
+    return names
+
+
+def tls_connect(files: dict[str, Path]) -> Callable[[int, float], socket.socket]:
+    """replay()'s `connect` for a TLS connection with the client certificate of `files`."""
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.load_verify_locations(files["ca"])
+    ctx.load_cert_chain(files["client"], files["client_key"])
+
+    def connect(port: int, timeout: float) -> socket.socket:
+        raw = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+        return ctx.wrap_socket(raw, server_hostname="127.0.0.1")
+    return connect
+
+
 def fuzz_session(frames: int, seed: int = 1, connections: int = 4, sanitize: bool = True,
-                 hang_limit_s: float = 3600) -> FuzzReport:
+                 hang_limit_s: float = 3600, tls: bool = False) -> FuzzReport:
     binary = build_runtime(h.BASIC, h.CACHE, sanitize=sanitize)
     report = FuzzReport(sanitized=sanitize)
-    rt = h.Runtime(binary, "--no-rt", "--frame-timeout", str(FRAME_TIMEOUT_MS)).start()
+    args = ["--no-rt", "--frame-timeout", str(FRAME_TIMEOUT_MS)]
+    connect = None
+    if tls:
+        files = tls_files(h.CACHE / "fuzz-tls")
+        args += ["--tls-port", "0", "--tls-cert", str(files["server"]), "--tls-key", str(files["server_key"]),
+                 "--tls-ca", str(files["ca"])]
+        connect = tls_connect(files)
+    rt = h.Runtime(binary, *args).start()
+    tls_port = int(rt.wait_for(r"modbus: TLS \(Modbus/TCP Security\) on [\d.]+:(\d+)").group(1)) if tls else 0
     try:
         corpus = load_corpus()
         report.corpus_entries = len(corpus)
         for entry in corpus:
             if (problem := replay(rt.port, entry)):
                 report.corpus_failures.append(problem)
+            if tls and (problem := replay(tls_port, entry, connect=connect)):
+                report.corpus_failures.append("over TLS: " + problem)
+            report.tls_replays += tls
         if frames > 0:
             result = subprocess.run([str(mbfuzz_binary()), "--port", str(rt.port), "--frames", str(frames),
                                      "--seed", str(seed), "--connections", str(connections)],
@@ -157,6 +197,9 @@ def fuzz_session(frames: int, seed: int = 1, connections: int = 4, sanitize: boo
         for entry in corpus:                   # the same answers after the storm
             if (problem := replay(rt.port, entry)):
                 report.corpus_failures.append("after fuzzing: " + problem)
+            if tls and (problem := replay(tls_port, entry, connect=connect)):
+                report.corpus_failures.append("after fuzzing, over TLS: " + problem)
+            report.tls_replays += tls
         try:
             with h.Client(rt.port) as c:
                 report.valid_request_after = c.read_input(LAYOUT_VERSION[0]) == [LAYOUT_VERSION[1]]
