@@ -54,7 +54,7 @@ def pki(tmp_path_factory) -> Path:
         "expired": tlscerts.make_leaf(ca, "expired", role="host", not_before=past - dt.timedelta(days=30),
                                       not_after=past),
         "other-ca": tlscerts.make_leaf(tlscerts.make_ca("another CA"), "stranger", role="engineer"),
-        "no-role": tlscerts.make_leaf(ca, "no-role"),
+        "no-role": tlscerts.make_leaf(ca, "no-role-" + "x" * 56),       # 64 characters: the longest CN
         "unknown-role": tlscerts.make_leaf(ca, "admin", role="admin"),
         "not-utf8": tlscerts.make_leaf(ca, "octets", role_value=b"\x04\x04host"),      # an OCTET STRING
     }
@@ -230,7 +230,7 @@ REFUSALS = {   # the certificate, and what the runtime's log says
     None: r"peer did not return a certificate",
     "other-ca": r"certificate: unable to get local issuer certificate",
     "expired": r"certificate: certificate has expired",
-    "no-role": r'cn "no-role": its certificate has no role extension \(OID 1\.3\.6\.1\.4\.1\.50316\.802\.1\)',
+    "no-role": r'cn "no-role-x{56}": its certificate has no role extension \(OID 1\.3\.6\.1\.4\.1\.50316\.802\.1\)\]',
     "unknown-role": r"cn \"admin\": its role 'admin' is not read, host or engineer",
     "not-utf8": r'cn "octets": its role extension is not one UTF8String',
 }

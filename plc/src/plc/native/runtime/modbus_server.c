@@ -79,10 +79,10 @@
 #include <linux/sockios.h>
 #include <modbus.h>
 #include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <openssl/err.h>
 #include <openssl/ssl.h>
 #include <openssl/x509v3.h>
-#include <netinet/tcp.h>
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -170,7 +170,7 @@ typedef struct event_gate {
     uint64_t last_line_ns;            /* 0: no line yet */
     unsigned held;                    /* events since that line, not logged yet */
     char last_peer[PEER_TEXT];
-    char last_detail[112];
+    char last_detail[176];            /* room for a TLS refusal: the common name (64) and the reason */
 } event_gate_t;
 
 struct modbus_server {
@@ -309,7 +309,7 @@ static void close_client(modbus_server_t *srv, client_t *c, event_kind_t why, co
 
 static void close_client(modbus_server_t *srv, client_t *c, event_kind_t why, const char *fmt, ...)
 {
-    char detail[112];
+    char detail[176];
     va_list ap;
 
     va_start(ap, fmt);
