@@ -158,6 +158,8 @@ def test_a_read_certificate_reads_and_its_writes_are_refused_with_exception_01(r
     assert after["writes_refused"] - before["writes_refused"] == 3 and after["writes"] == before["writes"]
     rt.wait_for(r"client 127\.0\.0\.1:\d+ authenticated over TLS \[TLSv1\.3, cn \"read-client\", role read\]"
                 r"|more clients authenticated over TLS .*cn \"read-client\", role read")
+    rt.wait_for(r"client 127\.0\.0\.1:\d+ write refused \[role read, fc=6 register 520 count=1: exception 01, "
+                r"role read writes nothing\]")
     text = audit_text(rt, r'cn="read-client" role=read fc=16 registers 1324-1325')
     assert re.search(r'^\S+Z modbus peer=127\.0\.0\.1:\d+ tls cn="read-client" role=read fc=6 register 520 count=1 '
                      r'-> refused: exception 01 ILLEGAL FUNCTION \(role read writes nothing\)$', text, re.M), text
