@@ -4,6 +4,7 @@ entry that is damaged or stored under another key is never used.  A parse result
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -316,3 +317,31 @@ def test_the_c_of_the_pous_an_edit_leaves_alone_comes_from_the_memo_and_equals_t
     assert sorted(generate_both()) == sorted(everything)            # a TYPE
     (src / "FB_Clamp.st").write_text(CLAMP.replace("VAR_OUTPUT", "VAR\n    calls : INT;\nEND_VAR\nVAR_OUTPUT"))
     assert sorted(generate_both()) == sorted(everything)            # an FB's own variables (its layout)
+
+
+def test_the_pous_the_memo_holds_are_not_checked_again_and_their_sites_point_where_they_did(tmp_path):
+    """plc test's build (compile_sources with the cache): the POUs whose C the memo holds skip the bodies pass;
+    their assertion sites are numbered as their C is replayed, so only the site table's order differs from a
+    build that checks everything: every unit's site map names the same positions."""
+    src, tests = project(tmp_path)
+    cache = buildcache.Cache(tmp_path / "cache")
+    site_map = re.compile(r"const int32_t (plc_sitemap_\w+)\[\] = \{([^}]*)\};")
+
+    def build(memo_cache):
+        res = compile_sources([str(src), str(tests)], test_build=True, generate=False, memo_cache=memo_cache)
+        assert res.ok, [d.render() for d in res.diags.errors]
+        units = dict(generate_units(res.program, test_build=True, memo=res.memo))
+        sites = res.program.sites
+        maps = {name: [(sites[int(n)].pos, sites[int(n)].pou) for n in body.split(",")]
+                for name, body in site_map.findall(units.pop("sites"))}
+        return res, units, maps
+
+    build(cache)                                                    # every POU written: the memo filled
+    (src / "F_Twice.st").write_text(TWICE.replace("x * 2", "x * 3"))
+    res, units, maps = build(cache)
+    assert res.memo.written == ["F_TWICE"] and len(res.memo.held) > 3
+    test_pou = next(p for f in res.files for p in f.items if getattr(p, "name", "") == "TEST_CLAMPKEEPSTHELIMITS")
+    assert id(test_pou) in res.memo.held                            # its body was not checked: no site yet...
+    _, afresh, afresh_maps = build(None)
+    assert units == afresh and maps == afresh_maps                  # ...and its assertion still reports its line
+    assert any(pos.file.endswith("TEST_ClampKeepsTheLimits.st") for m in maps.values() for pos, _pou in m)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import pickle
 import re
+from typing import Callable
 
 from . import ast as A
 from . import types as T
@@ -32,7 +33,7 @@ from .cgen.expressions import ExpressionGen
 from .cgen.init import InitGen
 from .cgen.statements import StatementGen
 from .cgen.types import TypeGen
-from .diagnostics import Pos
+from .diagnostics import InternalError, Pos
 from .passes.context import Program
 
 
@@ -154,8 +155,10 @@ class Gen(TypeGen, DeclarationGen, InitGen, StatementGen, ExpressionGen, CallGen
         with self.piece(unit=unit):
             memo = self.memo
             key = memo.key(unit, pou) if memo is not None else None
-            if key is not None and memo.replay(self, key, unit):
+            if key is not None and memo.replay(self, key, unit, pou):
                 return
+            if memo is not None and id(pou) in memo.held:
+                raise InternalError(pou.pos, "the C of a POU left out of the bodies pass was not replayed")
             start, known, before = len(self.out), len(self.p.sites), len(self.unit_sites.get(unit, ()))
             write()
             if key is not None:
@@ -216,7 +219,12 @@ class PieceMemo:
     A piece's site references are local (the unit's site map), so its text does not depend on the sites of other
     units; the sites themselves are replayed in order: the ones it numbered are numbered again, the ones the
     semantic passes numbered (assertions) are found again by position, and an entry whose assertion site is not
-    found is not used."""
+    found is not used.
+
+    plc test loads the entries before the semantic passes (preload): the bodies pass leaves those POUs out (an
+    entry is only written for a program without errors, so under the same key the body has none), and their
+    assertion sites are numbered when their C is replayed: the site table's order then differs from a build that
+    checks every body, every unit's site map names the same positions."""
 
     def __init__(self, cache, texts: dict[str, str], files: list[A.SourceFile], test_build: bool) -> None:
         self.cache = cache
@@ -227,6 +235,19 @@ class PieceMemo:
         self.written: list[str] = []    # the POUs generated (not found in the memo), by name
         self.replayed = 0               # how many came from the memo
         self._sema_sites: dict[tuple, int] | None = None
+        self.held: dict[int, tuple] = {}    # id(POU) -> its entry, loaded before the bodies pass (preload)
+
+    def preload(self, pous) -> Callable[[A.Pou], bool]:
+        """Load the entries of `pous` the memo holds, before the semantic passes: the bodies pass leaves these
+        POUs out (the predicate returned names them), and their C and sites come from the entries loaded
+        here, whatever happens to the cache meanwhile.  Their assertion sites, which the bodies pass would
+        have numbered, are numbered when their piece is written (replay)."""
+        for pou in pous:
+            key = self.key(pou.pos.file, pou)
+            entry = self._load(key) if key is not None else None
+            if entry is not None:
+                self.held[id(pou)] = entry
+        return lambda pou: id(pou) in self.held
 
     def interface(self, f: A.SourceFile, generator: str) -> str:
         """interface_digest of one file, from the cache when its text was met before (a file's tree is a function
@@ -250,25 +271,41 @@ class PieceMemo:
         refs = [("made", n - known) if n >= known else ("sema", sites[n].pos, sites[n].pou) for n in used]
         self.cache.store("cpiece", key, pickle.dumps((lines, made, refs), protocol=pickle.HIGHEST_PROTOCOL))
 
-    def replay(self, gen: Gen, key: str, unit: str) -> bool:
-        """Write the kept piece under `key` as if generated now: False (nothing written) when there is none."""
+    def _load(self, key: str) -> tuple | None:
         payload = self.cache.load("cpiece", key)
         if payload is None:
-            return False
+            return None
         try:
             lines, made, refs = pickle.loads(payload)
         except Exception:               # an entry that does not load is a miss, whatever broke it
+            return None
+        return lines, made, refs
+
+    def replay(self, gen: Gen, key: str, unit: str, pou: A.Pou) -> bool:
+        """Write the kept piece under `key` as if generated now: False (nothing written) when there is none."""
+        entry = self.held.get(id(pou))
+        unchecked = entry is None       # its body was checked: its assertion sites are numbered already
+        entry = entry or self._load(key)
+        if entry is None:
             return False
+        lines, made, refs = entry
         if self._sema_sites is None:    # the sites the passes numbered: all there are before generation writes
             self._sema_sites = {}
             for n, s in enumerate(gen.p.sites):
                 self._sema_sites.setdefault((s.pos, s.pou), n)
-        found = [self._sema_sites.get((r[1], r[2])) for r in refs if r[0] == "sema"]
-        if None in found:
-            return False
+        if unchecked:
+            found = [self._sema_sites.get((r[1], r[2])) for r in refs if r[0] == "sema"]
+            if None in found:
+                return False
+        else:                           # the bodies pass left it out: its assertion sites are numbered now
+            numbered: dict[tuple, int] = {}
+            for r in refs:
+                if r[0] == "sema" and (r[1], r[2]) not in numbered:
+                    numbered[(r[1], r[2])] = gen.p.site(r[1], r[2])
+            found = [numbered[(r[1], r[2])] for r in refs if r[0] == "sema"]
         first = len(gen.p.sites)
-        for pos, pou in made:
-            gen.p.site(pos, pou)
+        for pos, pou_name in made:
+            gen.p.site(pos, pou_name)
         sema = iter(found)
         if refs:
             gen.unit_sites.setdefault(unit, []).extend(first + r[1] if r[0] == "made" else next(sema) for r in refs)

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from . import ast as A
 from . import buildcache, plcopen, sema
+from .codegen import PieceMemo
 from .codegen import generate as gen_c
 from .diagnostics import Diagnostics, SourceSet
 from .parser import parse
@@ -43,7 +44,8 @@ class CompileResult:
     files: list[A.SourceFile] = field(default_factory=list)
     program: object = None
     c_text: str | None = None
-    texts: dict[str, str] = field(default_factory=dict)     # the ST text of each file parsed, by its name
+    texts: dict[str, str] = field(default_factory=dict)     # the ST text of each ST file parsed, by its name
+    memo: PieceMemo | None = None                             # compile_sources(memo_cache=...)
 
     @property
     def ok(self) -> bool:
@@ -165,15 +167,19 @@ SEMANTIC_PASSES = ("declarations", "types", "scopes", "configuration", "external
 
 
 def analyze(files: list[A.SourceFile], diags: Diagnostics, builtin_files: set[str] | None = None,
-            test_build: bool = False):
+            test_build: bool = False, skip_bodies=None):
     """The typed program (sema.Program): every semantic pass run over `files`, in SEMANTIC_PASSES order."""
-    return sema.analyze(files, diags, SEMANTIC_PASSES, builtin_files, test_build)
+    return sema.analyze(files, diags, SEMANTIC_PASSES, builtin_files, test_build, skip_bodies)
 
 
 @deep_recursion
 def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False, portability: bool = True,
                     target: str | None = None, generate: bool = True,
-                    extra_texts: list[tuple[str, str]] | None = None) -> CompileResult:
+                    extra_texts: list[tuple[str, str]] | None = None,
+                    memo_cache: buildcache.Cache | None = None) -> CompileResult:
+    """The program of `paths` checked (diagnostics) and, with `generate`, its C as one unit.  With `memo_cache`
+    (plc test: a test build, errors only), result.memo is a codegen.PieceMemo over it: the POUs whose C it holds
+    are left out of the bodies pass (so their warnings are not reported) and their C comes from it."""
     diags = Diagnostics(portability=portability)
     sources = SourceSet()
     result = CompileResult(diags, sources)
@@ -205,7 +211,13 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
         sources.add(name, text)
         result.texts[name] = text
         result.files.append(parse(text, name, diags))
-    prog = analyze(result.files, diags, builtins, test_build=test_build)
+    for tr in translations:                 # placed in the XML once checked: not named by the ST text's name
+        result.texts.pop(tr.st_name, None)
+    skip = None
+    if memo_cache is not None:
+        result.memo = PieceMemo(memo_cache, result.texts, result.files, test_build)
+        skip = result.memo.preload(item for f in result.files for item in f.items if isinstance(item, A.Pou))
+    prog = analyze(result.files, diags, builtins, test_build=test_build, skip_bodies=skip)
     result.program = prog
     if diags.portability:       # the portability pass reports warnings only, through Diagnostics.portable
         lint(result.files, prog, diags, builtins, target=target)

@@ -28,6 +28,8 @@ mistake does not cascade.  A node kind a pass does not handle is an
 """
 from __future__ import annotations
 
+from typing import Callable
+
 from .diagnostics import Diagnostics
 from . import ast as A
 from .passes.calls import CallTyping
@@ -51,9 +53,12 @@ HELPERS: dict[str, type[Pass]] = {p.pass_name: p for p in (ConstantEval, Express
 
 
 def analyze(files: list[A.SourceFile], diags: Diagnostics, order: tuple[str, ...],
-            builtin_files: set[str] | None = None, test_build: bool = False) -> Program:
-    """Run the passes named in `order` over one shared SemanticState; return the typed Program."""
+            builtin_files: set[str] | None = None, test_build: bool = False,
+            skip_bodies: Callable[[A.Pou], bool] | None = None) -> Program:
+    """Run the passes named in `order` over one shared SemanticState; return the typed Program.  The bodies pass
+    leaves out the POUs `skip_bodies` names (their C comes from the build cache: codegen.PieceMemo)."""
     st = SemanticState(files, diags, builtin_files, test_build)
+    st.skip_bodies = skip_bodies
     for name, cls in {**HELPERS, **PASSES}.items():
         st.passes[name] = cls(st)
     for name in order:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import buildcache, testcases
-from .codegen import PieceMemo, generate_units
+from .codegen import generate_units
 from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, compile_units, content_hash,
                      deep_recursion, paused_gc, print_diagnostics)
 from .project import Preflight, add_view_options, beside_preflight, project_root
@@ -77,17 +77,18 @@ def build_tests(paths: list[str], src: list[str], build_dir: Path, quiet: bool, 
         print_diagnostics(CompileResult(cases.diags, cases.sources), quiet=True)
         raise TestBuildError(len(cases.diags.errors))
     # errors only (warnings are plc check's business): no portability pass
+    cache = cache or buildcache.active() or buildcache.Cache(build_dir / "cache")
+    # the POUs of the files an edit leaves alone: their C from the cache, their bodies not checked again
+    # (codegen.PieceMemo); only errors are reported here, which such a body had none of
     res = compile_sources([*src, *paths], test_build=True, extra_texts=cases.extra_texts(), generate=False,
-                          portability=False)
+                          portability=False, memo_cache=cache)
     cases.remap(res.diags, res.sources)
     untabled(res, cases)
     print_diagnostics(res, quiet=True)   # errors only: warnings are `plc check`'s business
     if not res.ok:
         raise TestBuildError(len(res.diags.errors))
-    cache = cache or buildcache.active() or buildcache.Cache(build_dir / "cache")
-    # the POUs of the files an edit leaves alone come from the cache as C (codegen.PieceMemo); the C generator
-    # recurses over expressions like the passes: the same stack allowance (parser.MAX_OPERATORS)
-    memo = PieceMemo(cache, res.texts, res.files, test_build=True)
+    # the C generator recurses over expressions like the passes: the same stack allowance (parser.MAX_OPERATORS)
+    memo = res.memo
     units = [buildcache.Unit(name, text)
              for name, text in deep_recursion(generate_units)(res.program, test_build=True, memo=memo)]
     cache.written = (len(memo.written), len(memo.written) + memo.replayed)

@@ -108,6 +108,8 @@ class SemanticState:
         # the passes of this build by name (driver.analyze fills it); a pass reaches another through
         # the accessors of Pass below, so who asks whom is visible in the code
         self.passes: dict[str, "Pass"] = {}
+        # POUs whose bodies the bodies pass leaves out (their C is the build cache's: codegen.PieceMemo)
+        self.skip_bodies = None
 
     def err(self, pos: Pos, msg: str, hint: str | None = None, code: str = "semantic") -> None:
         self.d.error(pos, msg, hint, code)

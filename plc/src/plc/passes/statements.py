@@ -18,7 +18,10 @@ class StatementPass(Pass):
         self.loop = LoopCtx()                        # loop nesting of the statement being checked
 
     def run(self) -> None:
+        skip = self.st.skip_bodies
         for name, pou in self.st.pou_decls.items():
+            if skip is not None and skip(pou):
+                continue
             self.st.current_pou = pou
             if pou.kind == "FUNCTION":
                 self.st.scope = self.st.prog.funcs[name].scope
