@@ -93,3 +93,35 @@ def test_the_program_state_reaches_the_plcs_procedure_coils():
     ngc = (CONFIG / "nc_subs" / "atc_on_abort.ngc").read_text()
     assert "M64 P2" in ngc and "M65 P2" in ngc and "#<_hal[motion.digital-out-02]>" in ngc
     assert int(ini_values("EMCMOT", "NUM_DIO")[0]) > 2
+
+
+def test_the_210_host_file_drives_the_abort_line_the_remap_waits_on():
+    """LinuxCNC 2.10 has no iov2 (docs/linuxcnc.md, "LinuxCNC 2.10"): atc-host-210.hal raises the PLC's EmcAbort
+    from the ON_ABORT toggle and from motion going off, ends it on the PLC's EmcAbortAck, and shows it to the
+    remap, which waits for it to fall before it raises a change. It loads only components no other shipped HAL
+    file loads (a component loads once), and needs none of iov2's pins."""
+    hal = (CONFIG / "atc-host-210.hal").read_text()
+    for line in ("net atc-program-abort-toggle => atc-210-abort-toggled.in",
+                 "net atc-210-motion-enabled motion.motion-enabled => atc-210-motion-off.in",
+                 "net atc-emc-abort atc-210-abort-pending.fault-out => mb2hal.atc-bits-out.EmcAbort.bit "
+                 "motion.digital-in-07",
+                 "net atc-emc-abort-ack mb2hal.atc-bits-in.EmcAbortAck.bit => atc-210-abort-pending.reset",
+                 "net atc-210-fault-report mb2hal.atc-bits-in.ToolchangerFault.bit => "
+                 "mb2hal.atc-bits-out.ToolchangerFaultAck.bit"):
+        assert re.search(rf"(?m)^{re.escape(line)}$", hal), line
+    assert "iocontrol.0." not in re.sub(r"(?m)#.*$", "", hal)
+    mb2hal = (CONFIG / "atc_mb2hal.ini").read_text()
+    names = {n for m in re.finditer(r"(?m)^PIN_NAMES=(.*)$", mb2hal) for n in m.group(1).split(",")}
+    assert {"EmcAbort", "EmcAbortAck", "ToolchangerFault", "ToolchangerFaultAck"} <= names
+    loaded = {}
+    for path in CONFIG.glob("*.hal"):
+        for m in re.finditer(r"(?m)^loadrt\s+(\w+)", path.read_text()):
+            loaded.setdefault(m.group(1), []).append(path.name)
+    for comp in re.findall(r"(?m)^loadrt\s+(\w+)", hal):
+        assert loaded[comp] == ["atc-host-210.hal"], f"{comp} is loaded by {loaded[comp]} too"
+    assert 7 < int(ini_values("EMCMOT", "NUM_DIO")[0])
+    ngc = (CONFIG / "nc_subs" / "atc_m6.ngc").read_text()
+    wait, raise_request = ngc.index("M66 P7 L4 Q#<timeout>"), ngc.index("M64 P0")
+    assert wait < raise_request
+    # the 2.9 machine leaves the pin without a writer, so the wait ends at once there
+    assert not any("digital-in-07" in p.read_text() for p in CONFIG.glob("*.hal") if p.name != "atc-host-210.hal")
