@@ -342,6 +342,30 @@ def test_the_pous_the_memo_holds_are_not_checked_again_and_their_sites_point_whe
     assert res.memo.written == ["F_TWICE"] and len(res.memo.held) > 3
     test_pou = next(p for f in res.files for p in f.items if getattr(p, "name", "") == "TEST_CLAMPKEEPSTHELIMITS")
     assert id(test_pou) in res.memo.held                            # its body was not checked: no site yet...
+    assert test_pou.body == []                                      # (nor even loaded from the cache)
+    twice = next(p for f in res.files for p in f.items if getattr(p, "name", "") == "F_TWICE")
+    assert twice.body and id(twice) not in res.memo.held
     _, afresh, afresh_maps = build(None)
     assert units == afresh and maps == afresh_maps                  # ...and its assertion still reports its line
     assert any(pos.file.endswith("TEST_ClampKeepsTheLimits.st") for m in maps.values() for pos, _pou in m)
+
+
+def test_a_tree_loaded_without_its_bodies_gets_them_back_as_parsed(tmp_path):
+    """Cache.parsed with `later`: the POU bodies stay out of a loaded tree until Bodies.load(), which gives the
+    tree the parser gives; a stored body that does not load is parsed again."""
+    cache = buildcache.Cache(tmp_path / "cache")
+    text = TYPES + CLAMP + TWICE
+    want = repr(parse_text(text, "f.st", Diagnostics()))
+    later: list = []
+    first = cache.parsed(text, "f.st", Diagnostics(), parse_text, later)
+    assert later == [] and repr(first) == want                      # parsed now: whole
+    tree = cache.parsed(text, "f.st", Diagnostics(), parse_text, later)
+    pous = [item for item in tree.items if hasattr(item, "body")]
+    assert len(later) == 1 and len(pous) == 2 and all(p.body == [] for p in pous)
+    later[0].load()
+    assert repr(tree) == want
+    later.clear()
+    tree = cache.parsed(text, "f.st", Diagnostics(), parse_text, later)
+    later[0]._blob = b"not a pickle"
+    later[0].load()
+    assert repr(tree) == want

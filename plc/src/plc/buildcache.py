@@ -5,7 +5,8 @@ one cache in its build/plc-cache/ (git ignores build/; removing the directory is
 directory PLC_CACHE_DIR names (one cache for many checkouts: the entries are keyed by content).
 
 - A parsed file (parser.parse) is keyed by its name, its text and the compiler's own sources; it stores the
-  tree and the diagnostics the lexer and the parser reported, which a hit reports again.
+  tree (its POU bodies apart: plc test loads only those it checks again) and the diagnostics the lexer and the
+  parser reported, which a hit reports again.
 - A TOML file read through tomlconf (the project's checks before plc test and plc run read a dozen) is keyed the
   same way by its name, its text and the sources of tomlconf; it stores the values and the places of the entries.
 - An object file (compile_units) is keyed by the C text of its translation unit (self-contained: every
@@ -30,9 +31,11 @@ import subprocess
 import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import ast as A
 from .diagnostics import Diagnostics
 
 CACHE_DIR = Path("build") / "plc-cache"
@@ -173,34 +176,47 @@ class Cache:
         return removed
 
     # -------------------------------------------------------------- parsing --
-    def parsed(self, text: str, filename: str, diags: Diagnostics, parse_fn):
-        """parse_fn(text, filename, diags) through the cache: the tree, its diagnostics added to `diags`."""
+    def parsed(self, text: str, filename: str, diags: Diagnostics, parse_fn, later: list | None = None):
+        """parse_fn(text, filename, diags) through the cache: the tree, its diagnostics added to `diags`.
+
+        The POU bodies are stored apart from the rest of the tree.  With `later` (a list), a tree loaded from
+        the cache comes without them (every Pou.body empty) and a Bodies is appended to `later`: its load()
+        puts them in (plc test loads the bodies of the POUs it checks again only: codegen.PieceMemo)."""
         # the lexer and the parser record portability facts on the tree, never a warning: one entry serves
         # every Diagnostics setting
         key = sha256("parse", toolchain_digest(), filename, text)
         payload = self.load("parse", key)
         if payload is not None:
-            enabled = gc.isenabled()
-            gc.disable()            # a tree is many small objects, none of them cyclic garbage
-            try:
-                tree, items = pickle.loads(payload)
-            except Exception:       # an entry that does not load is a miss, whatever broke it
-                tree = None
-            finally:
-                if enabled:
-                    gc.enable()
+            with _no_gc():          # a tree is many small objects, none of them cyclic garbage
+                try:
+                    tree, items, blob = pickle.loads(payload)
+                    bodies = Bodies(tree, blob, text, filename, parse_fn)
+                    if later is None:
+                        bodies.load()
+                except Exception:   # an entry that does not load is a miss, whatever broke it
+                    tree = None
             if tree is not None:
                 self.hits += 1
                 diags.items.extend(items)
+                if later is not None:
+                    later.append(bodies)
                 return tree
         self.misses += 1
         own = Diagnostics(portability=diags.portability)
         tree = parse_fn(text, filename, own)
         diags.items.extend(own.items)
+        pous = [item for item in tree.items if isinstance(item, A.Pou)]
+        kept = [pou.body for pou in pous]
         try:
-            payload = pickle.dumps((tree, own.items), protocol=pickle.HIGHEST_PROTOCOL)
+            blob = pickle.dumps(kept, protocol=pickle.HIGHEST_PROTOCOL)
+            for pou in pous:
+                pou.body = []
+            payload = pickle.dumps((tree, own.items, blob), protocol=pickle.HIGHEST_PROTOCOL)
         except RecursionError:      # a tree nested deeper than pickle goes: parsed again next time
             return tree
+        finally:
+            for pou, body in zip(pous, kept, strict=True):
+                pou.body = body
         self.store("parse", key, payload)
         return tree
 
@@ -223,6 +239,41 @@ class Cache:
         except (pickle.PicklingError, RecursionError, TypeError, AttributeError):
             pass
         return value
+
+
+class Bodies:
+    """The POU bodies of a tree loaded from the cache without them (Cache.parsed with `later`)."""
+
+    def __init__(self, tree, blob: bytes, text: str, filename: str, parse_fn) -> None:
+        self.tree, self._blob, self._text, self._filename, self._parse = tree, blob, text, filename, parse_fn
+
+    def load(self) -> None:
+        """Put every POU's body back into the tree (once); a stored body that does not load is parsed again."""
+        if self._blob is None:
+            return
+        pous = [item for item in self.tree.items if isinstance(item, A.Pou)]
+        try:
+            with _no_gc():
+                bodies = pickle.loads(self._blob)
+            if len(bodies) != len(pous):
+                raise ValueError("bodies and POUs differ in number")
+        except Exception:
+            fresh = self._parse(self._text, self._filename, Diagnostics())
+            bodies = [item.body for item in fresh.items if isinstance(item, A.Pou)]
+        for pou, body in zip(pous, bodies, strict=True):
+            pou.body = body
+        self._blob = None
+
+
+@contextmanager
+def _no_gc():
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def project_cache(root: Path) -> Path:

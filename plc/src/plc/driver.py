@@ -24,7 +24,7 @@ from . import buildcache, plcopen, sema
 from .codegen import PieceMemo
 from .codegen import generate as gen_c
 from .diagnostics import Diagnostics, SourceSet
-from .parser import parse
+from .parser import parse, parse_text
 from .portability import lint
 from .resources import INCLUDE, STANDARD_FBS, STDLIB, TESTLIB
 
@@ -204,19 +204,26 @@ def compile_sources(paths: list[str | os.PathLike], *, test_build: bool = False,
     inputs.extend(user_inputs)
     if test_build:
         inputs.append((ENUM_ASSERTS, None))         # written from the others' types, once they are parsed
+    later: list[buildcache.Bodies] | None = [] if memo_cache is not None else None
     for name, text in inputs:
         if text is None:
             text = enum_asserts(result.files)
             builtins.add(name)
         sources.add(name, text)
         result.texts[name] = text
-        result.files.append(parse(text, name, diags))
+        if memo_cache is not None:          # parsed through the memo's cache, the POU bodies left for later
+            result.files.append(memo_cache.parsed(text, name, diags, parse_text, later))
+        else:
+            result.files.append(parse(text, name, diags))
     for tr in translations:                 # placed in the XML once checked: not named by the ST text's name
         result.texts.pop(tr.st_name, None)
     skip = None
     if memo_cache is not None:
         result.memo = PieceMemo(memo_cache, result.texts, result.files, test_build)
         skip = result.memo.preload(item for f in result.files for item in f.items if isinstance(item, A.Pou))
+        for bodies in later:                # the bodies of the files whose POUs are checked again, only
+            if not all(skip(item) for item in bodies.tree.items if isinstance(item, A.Pou)):
+                bodies.load()
     prog = analyze(result.files, diags, builtins, test_build=test_build, skip_bodies=skip)
     result.program = prog
     if diags.portability:       # the portability pass reports warnings only, through Diagnostics.portable
