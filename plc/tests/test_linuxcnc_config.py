@@ -109,7 +109,17 @@ def test_the_210_host_file_drives_the_abort_line_the_remap_waits_on():
                  "net atc-210-fault-report mb2hal.atc-bits-in.ToolchangerFault.bit => "
                  "mb2hal.atc-bits-out.ToolchangerFaultAck.bit"):
         assert re.search(rf"(?m)^{re.escape(line)}$", hal), line
-    assert "iocontrol.0." not in re.sub(r"(?m)#.*$", "", hal)
+    # the prepare's answer reaches task only through the gate (armed once the answer was seen low during the
+    # request); no other iov2 or iocontrol pin is used
+    for line in ("unlinkp iocontrol.0.tool-prepared",
+                 "net atc-tool-prepared => atc-210-prep-nack.in-00 atc-210-prep-answer.in-00",
+                 "net atc-tool-prepare => atc-210-prep-armed.in-00",
+                 "net atc-210-tool-prepared atc-210-prep-answer.and => iocontrol.0.tool-prepared"):
+        assert re.search(rf"(?m)^{re.escape(line)}$", hal), line
+    assert set(re.findall(r"iocontrol\.0\.[\w-]+", re.sub(r"(?m)#.*$", "", hal))) == {"iocontrol.0.tool-prepared"}
+    generated = (CONFIG / "atc_io.hal").read_text()
+    assert re.search(r"(?m)^net atc-tool-prepare iocontrol\.0\.tool-prepare\b", generated)
+    assert "net atc-tool-prepared mb2hal.atc-bits-in.ToolPrepared.bit => iocontrol.0.tool-prepared\n" in generated
     mb2hal = (CONFIG / "atc_mb2hal.ini").read_text()
     names = {n for m in re.finditer(r"(?m)^PIN_NAMES=(.*)$", mb2hal) for n in m.group(1).split(",")}
     assert {"EmcAbort", "EmcAbortAck", "ToolchangerFault", "ToolchangerFaultAck"} <= names
