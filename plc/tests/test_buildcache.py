@@ -369,3 +369,27 @@ def test_a_tree_loaded_without_its_bodies_gets_them_back_as_parsed(tmp_path):
     later[0]._blob = b"not a pickle"
     later[0].load()
     assert repr(tree) == want
+
+
+def test_plc_run_takes_its_program_object_from_the_build_cache(tmp_path):
+    """plc run's runtime build compiles the program through the build cache in use (plc build's and plc test's):
+    a second build directory links the object the first one compiled; a changed program is compiled again."""
+    from plc.runtime import build_runtime
+    src, _tests = project(tmp_path)
+    (src / "Main.st").write_text("PROGRAM Main\nVAR\n    n : INT;\nEND_VAR\nn := F_Twice(x := n);\nEND_PROGRAM\n"
+                                 "CONFIGURATION C\n    RESOURCE R ON PLC\n        TASK T(INTERVAL := T#10ms, "
+                                 "PRIORITY := 0);\n        PROGRAM M WITH T : Main;\n    END_RESOURCE\n"
+                                 "END_CONFIGURATION\n")
+    res = compile_sources([str(src)], portability=False)
+    assert res.ok, [d.render() for d in res.diags.errors]
+    before = buildcache.active()
+    try:
+        cache = buildcache.use(tmp_path / "cache")
+        for k, text in enumerate((res.c_text, res.c_text, res.c_text.replace("/* Generated", "/* Edited"))):
+            c_file = tmp_path / f"run{k}" / "program" / "program.c"
+            c_file.parent.mkdir(parents=True)
+            c_file.write_text(text)
+            exe = build_runtime(c_file, tmp_path / f"run{k}" / "bin")
+            assert exe.is_file() and cache.compiled == ([] if k == 1 else ["program"])
+    finally:
+        buildcache.use(before.root if before is not None else None)

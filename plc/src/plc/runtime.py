@@ -75,7 +75,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Sequence
 
-from . import io_config, project, tomlconf
+from . import buildcache, io_config, project, tomlconf
 from .diagnostics import Diagnostic
 from .tomlconf import Bool, Check, Field, Int, Invalid, OneOf, Table, ipv4
 from .extensions import RunSetup
@@ -209,7 +209,8 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
     for item in [cc, *version, *cflags, *cppflags, *libs]:
         digest.update(item.encode() + b"\0")
     inputs = sources + sorted(RUNTIME_DIR.glob("*.h")) + [INCLUDE_DIR / "plc_abi.h"]
-    for path in inputs + _dependencies(cc, program_c, cppflags):
+    program_deps = _dependencies(cc, program_c, cppflags)
+    for path in inputs + program_deps:
         digest.update(str(path.name).encode() + b"\0")
         digest.update(path.read_bytes())
     name = f"{BINARY_NAME}-{digest.hexdigest()[:16]}" + ("-asan" if sanitize else "")
@@ -231,7 +232,19 @@ def build_runtime(program_c: Path, out_dir: Path, sanitize: bool = False,
     os.close(fd)
     try:
         command = [cc, *cflags, *cppflags, "-c", str(program_c), "-o", program_o]
-        result = subprocess.run(command, capture_output=True, text=True)
+        cache = buildcache.active()
+        if cache is None:
+            result = subprocess.run(command, capture_output=True, text=True)
+        else:       # the program's object from the build cache plc build and plc test share, keyed by its text
+            try:
+                unit = buildcache.Unit(program_c.stem, program_c.read_text())
+                (cached,) = buildcache.compile_units(cache, [unit], cc, [*cflags, *cppflags],
+                                                     program_deps[1:], program_c.parent)
+                shutil.copyfile(cached, program_o)
+                result = subprocess.CompletedProcess(command, 0, "", "")
+            except buildcache.UnitError as e:
+                command = e.command
+                result = subprocess.CompletedProcess(command, 1, "", e.output)
         if result.returncode == 0:
             command = [cc, *cflags, *map(str, objects), program_o, "-o", tmp_name, *libs]
             result = subprocess.run(command, capture_output=True, text=True)
