@@ -104,6 +104,7 @@ class Cache:
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
+        self._root = str(self.root)
         self.hits = 0
         self.misses = 0
         self.compiled: list[str] = []      # the units compile_units compiled (not found in the cache), by name
@@ -116,9 +117,10 @@ class Cache:
     def load(self, kind: str, key: str, suffix: str = "") -> bytes | None:
         """The payload stored under `key`, or None when absent or not intact (its checksums do not match); an
         entry found is touched (the least recently used go first when the cache is trimmed)."""
-        path = self._path(kind, key, suffix)
+        path = os.path.join(self._root, kind, key[:2], key + suffix)     # (a thousand a build: no pathlib)
         try:
-            data = path.read_bytes()
+            with open(path, "rb") as f:
+                data = f.read()
             os.utime(path)
         except OSError:
             return None
