@@ -16,7 +16,8 @@ from pathlib import Path
 
 from . import __version__, buildcache, extensions, retainfile, runtime, testrunner
 from .diagnostics import InternalError
-from .driver import GeneratedCError, UserError, compile_c, compile_sources, paused_gc, print_diagnostics
+from .buildcache import paused_gc
+from .driver import GeneratedCError, UserError, compile_c, compile_sources, print_diagnostics
 from .project import add_view_options, choose_view, project_root, refused_by_preflight, where
 from .project import run_config as project_run_config
 

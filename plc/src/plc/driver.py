@@ -7,7 +7,6 @@ as diagnostics.  The semantic passes run in the order SEMANTIC_PASSES names.
 from __future__ import annotations
 
 import functools
-import gc
 import hashlib
 import os
 import re
@@ -15,7 +14,6 @@ import shlex
 import shutil
 import subprocess
 import sys
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -145,21 +143,6 @@ def deep_recursion(fn):
         finally:
             sys.setrecursionlimit(old)
     return wrapper
-
-
-@contextmanager
-def paused_gc():
-    """Python's cycle collector off while a command compiles: the front end makes about a million objects that
-    all live until the compile ends and are no cyclic garbage, so the collector's passes over them are pure
-    cost (a fifth of `plc test -k` after an edit, measured).  Restored afterwards: long-lived commands
-    (plc run's supervision) and in-process callers keep their collector."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
 
 
 # The semantic passes in the order they run, by name (sema.PASSES: one class each in plc/src/plc/passes).

@@ -128,27 +128,27 @@ class ConfigError(Exception):
 
 # --------------------------------------------------------------------------- build
 
-def _modbus_flags() -> tuple[list[str], list[str]]:
+def _library_flags(package: str, name: str, header: str, cflags: list[str],
+                   libs: list[str]) -> tuple[list[str], list[str]]:
+    """A library's compiler and linker flags from pkg-config, else the given ones when its header is installed."""
     if shutil.which("pkg-config"):
-        cflags = subprocess.run(["pkg-config", "--cflags", "libmodbus"], capture_output=True, text=True)
-        libs = subprocess.run(["pkg-config", "--libs", "libmodbus"], capture_output=True, text=True)
-        if cflags.returncode == 0 and libs.returncode == 0:
-            return cflags.stdout.split(), libs.stdout.split()
-    if Path("/usr/include/modbus/modbus.h").exists():
-        return ["-I/usr/include/modbus"], ["-lmodbus"]
-    raise RuntimeBuildError(f"libmodbus not found: {APT_HINT}")
+        found = [subprocess.run(["pkg-config", flag, package], capture_output=True, text=True)
+                 for flag in ("--cflags", "--libs")]
+        if all(r.returncode == 0 for r in found):
+            return found[0].stdout.split(), found[1].stdout.split()
+    if Path(header).exists():
+        return cflags, libs
+    raise RuntimeBuildError(f"{name} not found: {APT_HINT}")
+
+
+def _modbus_flags() -> tuple[list[str], list[str]]:
+    return _library_flags("libmodbus", "libmodbus", "/usr/include/modbus/modbus.h", ["-I/usr/include/modbus"],
+                          ["-lmodbus"])
 
 
 def _openssl_flags() -> tuple[list[str], list[str]]:
     """OpenSSL's compiler and linker flags (the TLS listener, modbus_server.c)."""
-    if shutil.which("pkg-config"):
-        cflags = subprocess.run(["pkg-config", "--cflags", "openssl"], capture_output=True, text=True)
-        libs = subprocess.run(["pkg-config", "--libs", "openssl"], capture_output=True, text=True)
-        if cflags.returncode == 0 and libs.returncode == 0:
-            return cflags.stdout.split(), libs.stdout.split()
-    if Path("/usr/include/openssl/ssl.h").exists():
-        return [], ["-lssl", "-lcrypto"]
-    raise RuntimeBuildError(f"OpenSSL not found: {APT_HINT}")
+    return _library_flags("openssl", "OpenSSL", "/usr/include/openssl/ssl.h", [], ["-lssl", "-lcrypto"])
 
 
 def _compiler() -> str:

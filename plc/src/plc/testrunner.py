@@ -24,7 +24,7 @@ from pathlib import Path
 from . import buildcache, testcases
 from .codegen import generate_units
 from .driver import (INCLUDE, STDLIB, CompileResult, UserError, cc, compile_sources, compile_units, content_hash,
-                     deep_recursion, paused_gc, print_diagnostics)
+                     deep_recursion, print_diagnostics)
 from .project import Preflight, add_view_options, beside_preflight, project_root
 from .resources import RUNTIME_SRC
 
@@ -244,7 +244,7 @@ def write_junit(path: str, results: list[TestResult], total_s: float) -> None:
 def cmd_test(args) -> int:
     # the collector stays off to the end: after the build, a collection would walk the million objects of the
     # front end (a tenth of a second) to free nothing, and the command ends soon after
-    with paused_gc():
+    with buildcache.paused_gc():
         return _test(args)
 
 

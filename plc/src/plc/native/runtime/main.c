@@ -151,6 +151,16 @@ static bool parse_double(const char *s, double lo, double *out)
     return true;
 }
 
+/* text into dst (of size bytes) when it is a dotted IPv4 address that fits */
+static bool copy_ipv4(char *dst, size_t size, const char *text)
+{
+    struct in_addr ia;
+    if (strlen(text) >= size || inet_pton(AF_INET, text, &ia) != 1)
+        return false;
+    snprintf(dst, size, "%s", text);
+    return true;
+}
+
 const char *role_name(client_role_t role)
 {
     return role == ROLE_READ ? "read" : role == ROLE_HOST ? "host" : "engineer";
@@ -346,25 +356,19 @@ static int parse_options(int argc, char **argv, rt_options_t *o)
     opterr = 0;
     while ((c = getopt_long(argc, argv, "", longopts, NULL)) != -1) {
         switch (c) {
-        case OPT_BIND: {
-            struct in_addr ia;
-            if (strlen(optarg) >= sizeof o->bind || inet_pton(AF_INET, optarg, &ia) != 1)
+        case OPT_BIND:
+            if (!copy_ipv4(o->bind, sizeof o->bind, optarg))
                 return usage_error("--bind: '%s' is not an IPv4 address", optarg);
-            snprintf(o->bind, sizeof o->bind, "%s", optarg);
             break;
-        }
         case OPT_PORT:
             if (!parse_long(optarg, 0, 65535, &v))
                 return usage_error("--port: '%s' is not a port number 0..65535", optarg);
             o->port = (int)v;
             break;
-        case OPT_TLS_BIND: {
-            struct in_addr ia;
-            if (strlen(optarg) >= sizeof o->tls_bind || inet_pton(AF_INET, optarg, &ia) != 1)
+        case OPT_TLS_BIND:
+            if (!copy_ipv4(o->tls_bind, sizeof o->tls_bind, optarg))
                 return usage_error("--tls-bind: '%s' is not an IPv4 address", optarg);
-            snprintf(o->tls_bind, sizeof o->tls_bind, "%s", optarg);
             break;
-        }
         case OPT_TLS_PORT:
             if (!parse_long(optarg, 0, 65535, &v))
                 return usage_error("--tls-port: '%s' is not a port number 0..65535", optarg);
