@@ -227,11 +227,12 @@ class Host:
         self.write(HomeRequest=0)
         self.step()
 
-    def run(self) -> None:
+    def run(self, min_scans: int = MIN_SCANS) -> None:
+        """The plan, episode by episode, again until min_scans have run (1: the plan once)."""
         self.write(SimulatedPlant=1, EStopOk=1, GuardDoorClosed=1, AirPressureOk=1, SpindleStopped=1,
                    MbxHostActive=0)
         self.until(lambda s: s["CarouselHomed"] and not s["ChangerBusy"], 6000)
-        while len(self.scans) < MIN_SCANS:
+        while True:
             for episode in PLAN:
                 kind = episode[0]
                 if kind == "change":
@@ -246,6 +247,8 @@ class Host:
                     self.home()
                     self.events["homings asked"] += 1
                 self.hold(10)
+            if len(self.scans) >= min_scans:
+                break
 
 
 def _signal_addresses() -> dict[str, str]:
@@ -260,6 +263,40 @@ def _run(cmd, cwd, what):
     assert result.returncode == 0, f"{what} failed:\n{(result.stdout + result.stderr)[-4000:]}"
 
 
+def build_ours(deploy: Path, out: Path, cflags: tuple[str, ...] = ("-O2",)) -> Path:
+    """`plc build` of the deploy file, compiled with gcc (cflags) and stepped by abi_driver.c: the driver."""
+    _run([sys.executable, "-m", "plc.cli", "build", "-q", str(deploy), "--out", str(out)], REPO, "plc build")
+    _run(["gcc", "-std=c99", *cflags, "-Wall", "-Wextra", "-Werror", f"-I{INCLUDE}", "program.c",
+          str(DRIVERS / "abi_driver.c"), "-lm", "-o", "prog"], out, "gcc (our build)")
+    return out / "prog"
+
+
+def build_matiec(deploy: Path, work: Path, iec2c: Path, library: Path, include: Path,
+                 cflags: tuple[str, ...] = ()) -> Path:
+    """iec2c of the deploy file as OpenPLC runs it, then g++ with OpenPLC's headers (no -O, as OpenPLC builds it,
+    unless cflags say otherwise), stepped by matiec_driver.cpp: the driver."""
+    (work / "st_files").mkdir(parents=True)
+    shutil.copy(deploy, work / "st_files" / "program.st")
+    os.symlink(library, work / "lib", target_is_directory=True)
+    _run([str(iec2c), *IEC2C_FLAGS, PROGRAM_PATH], work, "iec2c")
+    core = work / "core"
+    core.mkdir()
+    for name in ("POUS.c", "POUS.h", "LOCATED_VARIABLES.h", "Config0.c", "Config0.h", "Res0.c"):
+        shutil.move(work / name, core / name)
+    os.symlink(include, core / "lib", target_is_directory=True)
+    (core / "c_blocks.h").write_text("")       # OpenPLC's empty placeholder, included as "../c_blocks.h"
+    shutil.copy(DRIVERS / "matiec_driver.cpp", core)
+    _run(["g++", "-std=gnu++11", *cflags, "-I", "./lib", "-w", "Config0.c", "Res0.c", "matiec_driver.cpp", "-o",
+          "prog"], core, "g++ (MATIEC's build, OpenPLC's headers)")
+    return core / "prog"
+
+
+def deploy_file(out: Path) -> Path:
+    """The file an integrator uploads to OpenPLC v3 (`plc deploy openplc`)."""
+    _run([sys.executable, "-m", "plc.cli", "deploy", "openplc", "-q", "--out", str(out)], REPO, "plc deploy openplc")
+    return out
+
+
 def _builds(tmp_path: Path) -> tuple[Path, Path]:
     iec2c, library = _reference_compiler()
     include = os.environ.get("IEC2C_CINCLUDE")
@@ -270,28 +307,9 @@ def _builds(tmp_path: Path) -> tuple[Path, Path]:
     for compiler in ("gcc", "g++"):
         if shutil.which(compiler) is None:
             pytest.skip(f"{compiler} not found")
-    deploy = tmp_path / "deploy.st"
-    _run([sys.executable, "-m", "plc.cli", "deploy", "openplc", "-q", "--out", str(deploy)], REPO,
-         "plc deploy openplc")
-    ours = tmp_path / "ours"
-    _run([sys.executable, "-m", "plc.cli", "build", "-q", str(deploy), "--out", str(ours)], REPO, "plc build")
-    _run(["gcc", "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", f"-I{INCLUDE}", "program.c",
-          str(DRIVERS / "abi_driver.c"), "-lm", "-o", "prog"], ours, "gcc (our build)")
-    matiec = tmp_path / "matiec"
-    (matiec / "st_files").mkdir(parents=True)
-    shutil.copy(deploy, matiec / "st_files" / "program.st")
-    os.symlink(library, matiec / "lib", target_is_directory=True)
-    _run([str(iec2c), *IEC2C_FLAGS, PROGRAM_PATH], matiec, "iec2c")
-    core = matiec / "core"
-    core.mkdir()
-    for name in ("POUS.c", "POUS.h", "LOCATED_VARIABLES.h", "Config0.c", "Config0.h", "Res0.c"):
-        shutil.move(matiec / name, core / name)
-    os.symlink(include, core / "lib", target_is_directory=True)
-    (core / "c_blocks.h").write_text("")       # OpenPLC's empty placeholder, included as "../c_blocks.h"
-    shutil.copy(DRIVERS / "matiec_driver.cpp", core)
-    _run(["g++", "-std=gnu++11", "-I", "./lib", "-w", "Config0.c", "Res0.c", "matiec_driver.cpp", "-o", "prog"],
-         core, "g++ (MATIEC's build, OpenPLC's headers)")
-    return ours / "prog", core / "prog"
+    deploy = deploy_file(tmp_path / "deploy.st")
+    return build_ours(deploy, tmp_path / "ours"), build_matiec(deploy, tmp_path / "matiec", iec2c, library,
+                                                               Path(include))
 
 
 def test_our_build_and_openplc_matiec_agree_scan_for_scan(tmp_path):

@@ -12,6 +12,7 @@
  *   out:  "loc <ADDRESS>" for every located variable, then "ready"
  *   in:   one line per scan: "<ADDRESS>=<value> ..." (what the host writes before this scan; may be empty)
  *   out:  "o <value> ..." after the scan, the located variables in the order of the loc lines
+ * With --quiet it answers nothing after a scan (scripts/bench_scan.py replays a recorded script under callgrind).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -78,7 +79,8 @@ static located *find(const char *address) {
     return NULL;
 }
 
-int main(void) {
+int main(int argc, char **argv) {
+    bool quiet = argc > 1 && !strcmp(argv[1], "--quiet");
     for (size_t i = 0; i < n_located; i++) {          /* __IX0_0 -> %IX0.0 */
         snprintf(table[i].address, sizeof table[i].address, "%%%s", table[i].name + 2);
         for (char *c = table[i].address; *c; c++)
@@ -110,6 +112,8 @@ int main(void) {
             __CURRENT_TIME.tv_nsec -= 1000000000;
             __CURRENT_TIME.tv_sec += 1;
         }
+        if (quiet)
+            continue;
         fputs("o", stdout);
         for (size_t i = 0; i < n_located; i++)
             printf(" %lld", get(&table[i]));
