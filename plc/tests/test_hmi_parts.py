@@ -236,3 +236,57 @@ def test_the_page_lists_the_shipped_procedures_and_switches_them_through_procdis
         unaudited = server.run_command(hub, "procedure", {"slot": 2, "enabled": False}, "10.0.0.3")
         assert not unaudited["ok"] and "cannot append to the audit log" in unaudited["error"], unaudited
         assert fake.r("ProcDisabled") == 1, "a switch the audit log cannot take is not made"
+
+
+def test_a_go_to_is_answered_when_the_host_is_late_between_its_requests_or_quick_after_the_last(tmp_path):
+    """The page's go-to counts the scans that prove the PLC saw GotoRequest low and then its rise from ScanCount
+    reads made after the runtime acknowledged each write. So a host that is not scheduled for a few scan periods
+    between its requests (a busy machine: seen in CI as 'the PLC did not see the request') gets the answer to its
+    own request: every write of the page's session waits 20 ms (5 scans of the 4 ms task) before it goes out. And
+    go-tos given back to back without that wait are each an edge for the PLC. The go-tos alternate between the
+    pocket at the change position (Done) and one beyond the carousel (refused), so an answer read before the PLC
+    took the request would be the previous one's, or none."""
+    import time
+
+    import rt_harness as h
+    from atc.hmi import server
+    from atc.host.session import Session, Timeouts
+    from atc.host.tags import load_map
+    from atc.runsetup import runtime_setup
+    from plc import driver, runtime
+    from plc.modbus import ModbusClient
+
+    map_path = REPO / "modbus_map" / "map.toml"
+    built = driver.compile_sources([REPO / "st_src"], portability=False)
+    assert built.ok
+    (tmp_path / "program.c").write_text(built.c_text)
+    setup = runtime_setup(map_path, tmp_path)
+    binary = runtime.build_runtime(tmp_path / "program.c", h.CACHE, sanitize=h.SANITIZE, observer=setup.observer)
+    rt = h.Runtime(binary, "--no-rt", "--sim-flag", setup.sim_flag, "--writable-registers", "512-8191").start()
+    client = ModbusClient("127.0.0.1", rt.port, timeout=10 * h.SLOW)
+    client.connect()
+    session = Session(load_map(map_path), client, say=lambda _t: None, timeouts=Timeouts(request=60 * h.SLOW))
+    try:
+        session.start()
+        assert session.prepare(3, 3).ok and session.change().ok, "a change homes the carousel first"
+        hub = server.Hub(server.Options(plc_port=rt.port), mapinfo.load(map_path), None, 6)
+        here = int(session.tags.get("CurrentPocket"))
+        assert 1 <= here <= 6
+        prompt = session.tags.write
+
+        def late_write(**values):
+            time.sleep(0.02)
+            prompt(**values)
+        expected = [{"ok": True, "text": f"go to pocket {here}: pocket {here} at the change position"},
+                    {"ok": False, "error": "go to pocket 9: the PLC refused: pocket 9 is not on the carousel (1..6)"}]
+        session.tags.write = late_write
+        late = [server.goto(session, hub, pocket) for pocket in (here, 9) * 5]
+        session.tags.write = prompt
+        quick = [server.goto(session, hub, pocket) for pocket in (here, 9) * 5]
+        assert late == expected * 5, late
+        assert quick == expected * 5, quick
+    finally:
+        session.stop()
+        client.close()
+        rc = rt.stop()
+    rt.assert_clean_exit(rc)
