@@ -233,8 +233,12 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=__doc__.split("\n\n")[-1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--top", type=int, default=15, help="functions in the breakdown (default 15)")
-    ap.add_argument("--keep", type=Path, help="build and keep the builds and callgrind outputs in this directory")
+    ap.add_argument("--keep", type=Path,
+                    help="build in this directory (new or empty) and keep the builds and callgrind outputs")
     args = ap.parse_args()
+    if args.keep and args.keep.exists() and any(args.keep.iterdir()):
+        print(f"bench_scan: --keep {args.keep}: the directory is not empty", file=sys.stderr)
+        return 2
     if shutil.which("valgrind") is None:
         print("skipped: valgrind is not installed (apt-get install valgrind)")
         return 0
