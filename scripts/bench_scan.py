@@ -8,6 +8,9 @@ build's driver (--quiet) under valgrind's callgrind. A native replay first check
 scan as ours does.
 
 - ours: `plc build`, gcc -O2 (as the runtime builds it), stepped by plc/tests/differential/abi_driver.c;
+- with --baseline REV, ours as the compiler of git revision REV (an earlier release, or the last one before a
+  change of the code generator) builds the same deploy file: REV's plc package and plc_abi.h, exported from this
+  repository's history into the work directory, stepped by today's abi_driver.c (the bench's own harness);
 - MATIEC -O2 and MATIEC as OpenPLC builds it (g++ without -O, i.e. -O0): iec2c, then g++ with OpenPLC's headers,
   stepped by plc/tests/differential/matiec_driver.cpp; only when IEC2C, IEC2C_LIB and IEC2C_CINCLUDE name a
   MATIEC build (see plc/tests/test_matiec_optional.py).
@@ -22,10 +25,11 @@ per-line costs with the builds' debug information), so code gcc inlined into a c
 was written in. Names are matched across the builds: our P_<FB>_body and U_<FUNCTION> against MATIEC's
 <FB>_body__ and <FUNCTION>.
 
-    scripts/bench_scan.py [--top N] [--keep DIR]
+    scripts/bench_scan.py [--top N] [--keep DIR] [--baseline REV]
 
 Exit status: 0 when the measured ratio meets the target (<= 0.45x MATIEC -O2) or MATIEC is not available to
-measure it, 1 when it does not or a build answered a scan otherwise than ours, 2 when a build or a run failed.
+measure it, 1 when it does not or a build answered a scan otherwise than ours, 2 when a build or a run failed or
+REV is not a revision of this repository.
 """
 from __future__ import annotations
 
@@ -51,6 +55,39 @@ SCAN_FUNCTION = {"ours": "plc_run", "matiec": "config_run__*"}   # g++ names it 
 DEBUG = ("-g",)        # line information for the breakdown; it changes no instruction
 LINES = 10             # the hottest source lines printed
 OURS, MATIEC_O2, MATIEC_O0 = "ours, gcc -O2", "MATIEC, g++ -O2", "MATIEC, g++ -O0 (as OpenPLC)"
+
+
+def revision(rev: str) -> str:
+    """The commit `rev` names in this repository, abbreviated; BadRevision when it names none."""
+    name = subprocess.run(["git", "rev-parse", "--short", "--verify", "--quiet", f"{rev}^{{commit}}"], cwd=ROOT,
+                          capture_output=True, text=True)
+    if name.returncode != 0:
+        raise BadRevision(f"--baseline {rev}: not a revision of this repository")
+    return name.stdout.strip()
+
+
+def build_baseline(rev: str, deploy: Path, work: Path) -> Path:
+    """The deploy file built as `build_ours` does, by the compiler of commit `rev` (its plc package and plc_abi.h,
+    exported with git archive into work/src), stepped by today's abi_driver.c: the driver."""
+    src, out = work / "src", work / "build"
+    src.mkdir(parents=True)
+    out.mkdir()
+    archive = subprocess.run(["git", "archive", "--format=tar", rev, "plc"], cwd=ROOT, capture_output=True,
+                             check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
+    env = dict(os.environ, PYTHONPATH=str(src / "plc" / "src"))
+    for cmd, where, what in (
+            ([sys.executable, "-m", "plc.cli", "build", "-q", str(deploy), "--out", str(out)], src, "plc build"),
+            (["gcc", "-std=c99", "-O2", *DEBUG, "-Wall", "-Wextra", f"-I{src / 'plc/src/plc/native/include'}",
+              "program.c", str(ROOT / "plc/tests/differential/abi_driver.c"), "-lm", "-o", "prog"], out, "gcc")):
+        run = subprocess.run(cmd, cwd=where, env=env, capture_output=True, text=True)
+        if run.returncode != 0:
+            raise RuntimeError(f"--baseline {rev}: {what} failed:\n{(run.stdout + run.stderr)[-3000:]}")
+    return out / "prog"
+
+
+class BadRevision(Exception):
+    """--baseline names no commit of this repository."""
 
 
 def callgrind(scan_function: str, out: Path) -> tuple[str, ...]:
@@ -235,6 +272,9 @@ def main() -> int:
     ap.add_argument("--top", type=int, default=15, help="functions in the breakdown (default 15)")
     ap.add_argument("--keep", type=Path,
                     help="build in this directory (new or empty) and keep the builds and callgrind outputs")
+    ap.add_argument("--baseline", metavar="REV",
+                    help="also build the program with the compiler of git revision REV (e.g. the last stop's "
+                         "commit) and report ours against it, measured in the same run")
     args = ap.parse_args()
     if args.keep and args.keep.exists() and any(args.keep.iterdir()):
         print(f"bench_scan: --keep {args.keep}: the directory is not empty", file=sys.stderr)
@@ -242,12 +282,18 @@ def main() -> int:
     if shutil.which("valgrind") is None:
         print("skipped: valgrind is not installed (apt-get install valgrind)")
         return 0
+    short = revision(args.baseline) if args.baseline else None
     matiec = matiec_env()
     with tempfile.TemporaryDirectory() as d:
         work = args.keep or Path(d)
         work.mkdir(parents=True, exist_ok=True)
         deploy = deploy_file(work / "deploy.st")
         builds = {OURS: (build_ours(deploy, work / "ours", ("-O2", *DEBUG)), "ours")}
+        baseline = None
+        if short:
+            exe = build_baseline(short, deploy, work / "baseline")
+            baseline = f"ours at {short} (--baseline), gcc -O2"
+            builds[baseline] = (exe, "ours")
         if matiec:
             builds[MATIEC_O2] = (build_matiec(deploy, work / "matiec-O2", *matiec, ("-O2", *DEBUG)), "matiec")
             builds[MATIEC_O0] = (build_matiec(deploy, work / "matiec-O0", *matiec, DEBUG), "matiec")
@@ -278,6 +324,8 @@ def main() -> int:
         print(f"ours / MATIEC -O2: {ratio:.2f}x, measured in this run (target <= {TARGET}x): {'yes' if ok else 'NO'}")
     else:
         print("ours / MATIEC -O2: not measured (MATIEC is not available: see above)")
+    if baseline:
+        print(f"ours / {baseline.split(' (')[0]}: {per_scan[OURS] / per_scan[baseline]:.2f}x, measured in this run")
     print()
     print(f"where the instructions go: the top {args.top} functions of our build (self cost; code gcc inlined counts "
           "for the function it was written in)")
@@ -309,6 +357,7 @@ def main() -> int:
 if __name__ == "__main__":
     try:
         sys.exit(main())
-    except (AssertionError, RuntimeError, subprocess.CalledProcessError) as failure:   # a build or a run failed
+    except (AssertionError, RuntimeError, subprocess.CalledProcessError, BadRevision) as failure:
+        # a build or a run failed, or --baseline named no revision
         print(f"bench_scan: {failure}", file=sys.stderr)
         sys.exit(2)
