@@ -28,6 +28,11 @@ def prog(decls: str, body: str) -> str:
 
 
 OK = "VAR x : INT; w : WORD; b : BOOL; t : TIME; d : DINT; END_VAR"
+# functions whose results are a structure and an array (result-access)
+RESULTS = ("TYPE T_Pair : STRUCT a : INT; b : INT; END_STRUCT; END_TYPE\n"
+           "TYPE T_Row : ARRAY[1..3] OF INT; END_TYPE\n"
+           "FUNCTION F_Pair : T_Pair\nVAR_INPUT k : INT; END_VAR\nF_Pair.a := k;\nEND_FUNCTION\n"
+           "FUNCTION F_Row : T_Row\nVAR_INPUT k : INT; END_VAR\nF_Row[1] := k;\nEND_FUNCTION\n")
 
 # rule -> (ST that breaks it, --target)
 EXAMPLES: dict[str, tuple[str, str | None]] = {
@@ -81,6 +86,7 @@ EXAMPLES: dict[str, tuple[str, str | None]] = {
     "time-conversion": (prog(OK, "d := TIME_TO_DINT(t);"), None),
     "time-inexact": (prog(OK, "t := t + T#4ms;"), None),
     "time-syntax": (prog(OK, "t := T#30m500ms;"), None),
+    "result-access": (RESULTS + prog(OK, "x := F_Pair(k := 1).a;"), None),
     "time-unit": (prog(OK, "t := T#5us;"), None),
     "unary-chain": (prog(OK, "x := - -x;"), None),
     "unary-plus": (prog(OK, "x := 2 * +x;"), None),
@@ -218,3 +224,20 @@ def test_unary_operators_warn_exactly_where_iec2c_refuses_them(expr, rules):
 def test_not_directly_before_not_warns_and_in_parentheses_does_not():
     assert [d.code for d in portability_warnings(prog(OK, "b := NOT NOT b;"))] == [portability.rule_code("unary-chain")]
     assert portability_warnings(prog(OK, "b := NOT (NOT b);")) == []
+
+
+@pytest.mark.parametrize("body, warns", [
+    ("x := F_Pair(k := 1).a;", True), ("x := (F_Pair(k := 1)).a;", True), ("x := F_Row(k := 1)[1];", True),
+    ("x := 2 * F_Pair(k := x).b + 1;", True),
+    ("p := F_Pair(k := 1); x := p.a;", False), ("r := F_Row(k := 1); x := r[1];", False),
+    ("x := ABS(x) + (x);", False), ("x := (p).a;", True),
+])
+def test_selecting_from_a_result_warns_exactly_where_iec2c_refuses_it(body, warns):
+    """Each body was given to iec2c (OpenPLC_v3's MATIEC): it refuses the ones that warn as syntax errors (a member
+    or element of a function's result or of a parenthesized expression, a parenthesized variable too) and compiles
+    the others (the same values taken from a variable)."""
+    found = portability_warnings(RESULTS + prog("VAR x : INT; b : BOOL; p : T_Pair; r : T_Row; END_VAR", body))
+    assert [d.code for d in found] == ([portability.rule_code("result-access")] if warns else []), \
+        [d.message for d in found]
+    if warns:
+        assert "assign it to a variable first" in found[0].message + str(found[0].hint)

@@ -77,6 +77,8 @@ RULES: dict[str, Rule] = {
                          "(x86-64), so a sum of it drifts and a comparison with it can flip", "{hint}"),
     "time-syntax": Rule("MATIEC rejects the duration T#{text}: its units follow one another (d h m s ms) and each "
                         "after the first stays in range (h < 24, m and s < 60, ms < 1000)", "write {spelling}"),
+    "result-access": Rule("a member or element of {what} is a syntax error in MATIEC (it selects from variables "
+                          "only)", "assign it to a variable first and select from that"),
     "time-unit": Rule("'us'/'ns' units in TIME literals are rejected by OpenPLC's MATIEC",
                       "write fractions of ms, e.g. T#1.5ms"),
     "unary-chain": Rule("'{op}' directly before another '{inner}' is a syntax error in MATIEC",

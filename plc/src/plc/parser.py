@@ -770,7 +770,14 @@ class Parser:
             self.facts.append(fact("unary-chain", t.pos, op=op, inner=operand.op))
 
     def power(self) -> A.Expr:
-        return self.postfix(self.primary())
+        first = self.tok
+        e = self.primary()
+        if self.tok.is_sym(".", "[") and (first.is_sym("(") or isinstance(e, A.Call)):
+            # MATIEC's grammar selects members and elements of variables only (measured with iec2c: F(k := 1).a,
+            # (F(k := 1)).a and G(k := 1)[1] are syntax errors; v := F(k := 1); x := v.a is not)
+            self.facts.append(fact("result-access", self.tok.pos, what="a parenthesized expression"
+                                   if first.is_sym("(") else f"the result of {e.text or e.func}()"))
+        return self.postfix(e)
 
     def primary(self) -> A.Expr:
         t = self.tok
