@@ -67,23 +67,14 @@ def revision(rev: str) -> str:
 
 
 def build_baseline(rev: str, deploy: Path, work: Path) -> Path:
-    """The deploy file built as `build_ours` does, by the compiler of commit `rev` (its plc package and plc_abi.h,
-    exported with git archive into work/src), stepped by today's abi_driver.c: the driver."""
-    src, out = work / "src", work / "build"
+    """The deploy file built as `build_ours` builds ours, by the compiler of commit `rev` (its plc package and
+    plc_abi.h, exported with git archive into work/src), stepped by today's abi_driver.c: the driver."""
+    src = work / "src"
     src.mkdir(parents=True)
-    out.mkdir()
     archive = subprocess.run(["git", "archive", "--format=tar", rev, "plc"], cwd=ROOT, capture_output=True,
                              check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
-    env = dict(os.environ, PYTHONPATH=str(src / "plc" / "src"))
-    for cmd, where, what in (
-            ([sys.executable, "-m", "plc.cli", "build", "-q", str(deploy), "--out", str(out)], src, "plc build"),
-            (["gcc", "-std=c99", "-O2", *DEBUG, "-Wall", "-Wextra", f"-I{src / 'plc/src/plc/native/include'}",
-              "program.c", str(ROOT / "plc/tests/differential/abi_driver.c"), "-lm", "-o", "prog"], out, "gcc")):
-        run = subprocess.run(cmd, cwd=where, env=env, capture_output=True, text=True)
-        if run.returncode != 0:
-            raise RuntimeError(f"--baseline {rev}: {what} failed:\n{(run.stdout + run.stderr)[-3000:]}")
-    return out / "prog"
+    return build_ours(deploy, work / "build", ("-O2", *DEBUG), source=src)
 
 
 class BadRevision(Exception):

@@ -258,16 +258,20 @@ def _signal_addresses() -> dict[str, str]:
     return {s.name: iec_address(s) for s in rmap.signals if iec_address(s)}
 
 
-def _run(cmd, cwd, what):
-    result = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S)
+def _run(cmd, cwd, what, env=None):
+    result = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S, env=env)
     assert result.returncode == 0, f"{what} failed:\n{(result.stdout + result.stderr)[-4000:]}"
 
 
-def build_ours(deploy: Path, out: Path, cflags: tuple[str, ...] = ("-O2",)) -> Path:
-    """`plc build` of the deploy file, compiled with gcc (cflags) and stepped by abi_driver.c: the driver."""
-    _run([sys.executable, "-m", "plc.cli", "build", "-q", str(deploy), "--out", str(out)], REPO, "plc build")
-    _run(["gcc", "-std=c99", *cflags, "-Wall", "-Wextra", "-Werror", f"-I{INCLUDE}", "program.c",
-          str(DRIVERS / "abi_driver.c"), "-lm", "-o", "prog"], out, "gcc (our build)")
+def build_ours(deploy: Path, out: Path, cflags: tuple[str, ...] = ("-O2",), source: Path = REPO) -> Path:
+    """`plc build` of the deploy file, compiled with gcc (cflags) and stepped by abi_driver.c: the driver.
+    `source`: the tree whose plc package and plc_abi.h build it (scripts/bench_scan.py --baseline: an earlier
+    commit's, exported from the history); the driver is always this tree's."""
+    env = None if source == REPO else dict(os.environ, PYTHONPATH=str(source / "plc" / "src"))
+    _run([sys.executable, "-m", "plc.cli", "build", "-q", str(deploy), "--out", str(out)], source, "plc build", env)
+    _run(["gcc", "-std=c99", *cflags, "-Wall", "-Wextra", "-Werror",
+          f"-I{source / INCLUDE.relative_to(REPO)}", "program.c", str(DRIVERS / "abi_driver.c"), "-lm", "-o", "prog"],
+         out, "gcc (our build)")
     return out / "prog"
 
 
