@@ -22,7 +22,9 @@ class StatementGen(GenBase):
         for v in pt.scope.vars.values():
             if v.section == "VAR_TEMP":
                 self.emit_init(f"self->{cid(v.name)}", v.type, v.init)
+        self.fold_constants = True
         self.block(pt.pou.body)
+        self.fold_constants = False
         self.ind -= 1
         self.w("}")
         self.w()
@@ -47,7 +49,9 @@ class StatementGen(GenBase):
                 self.w(f"(void){cid(v.name)};")        # a local may be set and never read
             elif v.section == "VAR_OUTPUT":
                 self.emit_init(f"(*{cid(v.name)})", v.type, v.init)
+        self.fold_constants = True
         self.block(fs.pou.body)
+        self.fold_constants = False
         self.w("return RESULT__;")
         self.ind -= 1
         self.w("}")
