@@ -1,7 +1,8 @@
-"""The leaner C of issue 33 (docs/scan-cost.md): reads of CONSTANTs as literals.
+"""The leaner C of issue 33 (docs/scan-cost.md): reads of CONSTANTs as literals, FOR variables in C locals.
 
 Each optimisation is pinned twice: in the C text (what the generator emits, and what it must leave alone) and by
-running the program (the values a scan leaves are those of the plain C).
+running the program (the values a scan leaves are those of the plain C: at the end of a loop, at EXIT, at RETURN,
+after a fault).
 """
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ import re
 import struct
 
 from harness import compile_st, render, run_st, with_config
+
+INDEX = 2           # plc_fault_kind_t
+
 
 def body(c_text: str, pou: str) -> str:
     """The C of P_<pou>_body."""
@@ -136,3 +140,109 @@ def test_folded_constants_give_the_values_of_the_variables():
     # REAL 0.1 is single precision, whether read from the variable or as the literal
     assert run.value("CONFIG0.RES0.P_CONSTINST.tenth") == struct.unpack("<f", struct.pack("<f", 0.1))[0]
     assert run.info("CONFIG0.RES0.P_CONSTINST.KWords").constant
+
+
+LOOPS = """
+FUNCTION_BLOCK FB_Find
+VAR_INPUT want : INT; END_VAR
+VAR_OUTPUT pos : INT; END_VAR
+VAR
+    k : INT;
+    cells : ARRAY[1..10] OF INT := [3, 1, 4, 1, 5, 9, 2, 6, 5, 3];
+END_VAR
+pos := 0;
+FOR k := 1 TO 10 DO
+    IF cells[k] = want THEN
+        pos := k;
+        RETURN;
+    END_IF;
+END_FOR;
+END_FUNCTION_BLOCK
+
+PROGRAM P_Loops
+VAR CONSTANT
+    Last : INT := 8;
+END_VAR
+VAR
+    k, n, exitAt, sum, found, skipped : INT;
+    a : ARRAY[1..8] OF INT;
+    finder : FB_Find;
+    j : INT := 2;
+END_VAR
+FOR k := 1 TO Last DO
+    a[k] := k * k;
+END_FOR;
+n := k;                                     (* 9 *)
+FOR k := 1 TO Last DO
+    IF a[k] > 20 THEN EXIT; END_IF;
+END_FOR;
+exitAt := k;                                (* 5 *)
+FOR k := Last TO 1 BY -3 DO
+    sum := sum + a[k];                      (* 64 + 25 + 4 *)
+END_FOR;
+finder(want := 9);
+found := finder.pos;                        (* 6 *)
+FOR k := 1 TO 4 DO
+    IF k MOD 2 = 0 THEN CONTINUE; END_IF;
+    skipped := skipped + k;                 (* 1 + 3 *)
+END_FOR;
+FOR j := j + 1 TO 6 DO                      (* the start reads j before the loop sets it: 3 TO 6 *)
+END_FOR;
+END_PROGRAM
+"""
+
+
+def test_a_for_variable_is_read_from_a_c_local_and_written_wherever_it_changes():
+    code = body(c_of(LOOPS), "P_LOOPS")
+    m = re.search(r"for \((loop\d+) = \(\(int16_t\)1LL\), self->K = \1; \1 <= \(\(int16_t\)8LL\); "
+                  r"\1 = PLC_ADD\(int16_t, uint16_t, \1, 1\), self->K = \1\) \{", code)
+    assert m, code[:2000]
+    assert f"self->A.e[plc_idx((int64_t)({m.group(1)}), 1, 8," in code
+
+
+def test_for_loops_leave_their_variable_as_the_plain_c_did():
+    run = run_st(LOOPS, scans=1)
+    v = {n: run.value(f"P_Loops.{n}") for n in ("n", "exitAt", "sum", "found", "skipped", "k", "j", "finder.k")}
+    assert v == {"n": 9, "exitAt": 5, "sum": 64 + 25 + 4, "found": 6, "skipped": 4, "k": 5, "j": 7,
+                 "finder.k": 6}                                 # RETURN left the loop at k = 6
+
+
+FAULT = """
+PROGRAM P_Fault
+VAR
+    k, last : INT;
+    a : ARRAY[1..3] OF INT;
+END_VAR
+FOR k := 1 TO 5 DO
+    last := k;
+    a[k] := k;                              (* k = 4 is out of bounds *)
+END_FOR;
+END_PROGRAM
+"""
+
+
+def test_a_fault_inside_a_for_loop_leaves_the_variable_of_the_failing_pass():
+    run = run_st(FAULT, scans=1)
+    assert run.rcs == [INDEX]
+    assert run.value("k") == 4 and run.value("last") == 4
+
+
+SAME_VARIABLE = """
+PROGRAM P_Same
+VAR
+    k, n : INT;
+END_VAR
+FOR k := 1 TO 3 DO
+    FOR k := 1 TO 2 DO
+        n := n + 1;
+    END_FOR;
+END_FOR;
+END_PROGRAM
+"""
+
+
+def test_a_loop_whose_variable_an_inner_loop_counts_reads_the_instance():
+    code = body(c_of(SAME_VARIABLE), "P_SAME")
+    assert "for (self->K = ((int16_t)1LL); self->K <= ((int16_t)3LL);" in code
+    run = run_st(SAME_VARIABLE, scans=1)
+    assert run.value("n") == 2 and run.value("k") == 4          # inner loop leaves 3, the outer step 4 ends it

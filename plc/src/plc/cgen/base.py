@@ -97,6 +97,7 @@ class GenBase:
         self.tmp = 0
         self.fold_constants = False         # reads of CONSTANTs as literals (ExpressionGen.folded): in bodies
         self.folding: set[int] = set()      # the CONSTANTs being folded (a cycle is not folded)
+        self.for_locals: dict[int, str] = {}    # id(VarSym) -> the C local a FOR loop reads it from
         self.cfg = None
         if prog.configs:
             self.cfg = prog.configs[0]

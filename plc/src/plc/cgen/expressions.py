@@ -190,7 +190,7 @@ class ExpressionGen(GenBase):
         if isinstance(sym, FuncSym):
             return "RESULT__"
         if isinstance(sym, VarSym):
-            return self.folded(sym) or self.var_ref(sym)
+            return self.for_locals.get(id(sym)) or self.folded(sym) or self.var_ref(sym)
         raise InternalError(e.pos, f"name {e.name} reached the C generator unresolved")
 
     def x_Member(self, e: A.Member) -> str:
