@@ -95,6 +95,9 @@ class GenBase:
         self.fn: FuncSym | None = None        # FUNCTION being generated
         self.pou: A.Pou | None = None
         self.tmp = 0
+        self.fold_constants = False         # reads of CONSTANTs as literals (ExpressionGen.folded): in bodies
+        self.folding: set[int] = set()      # the CONSTANTs being folded (a cycle is not folded)
+        self.for_locals: dict[int, str] = {}    # id(VarSym) -> the C local a FOR loop reads it from
         self.cfg = None
         if prog.configs:
             self.cfg = prog.configs[0]

@@ -30,7 +30,107 @@ class ExpressionGen(GenBase):
         return f"self->{name}"
 
     def lv(self, e: A.Expr) -> str:
+        """C lvalue of `e`: a variable itself, never the literal a read of a CONSTANT may be (folded)."""
+        if isinstance(e, A.Name) and isinstance(e.sym, VarSym):
+            return self.var_ref(e.sym)
         return self.ex(e)
+
+    # ------------------------------------------------------- folded constants --
+    def folded(self, sym: VarSym) -> str | None:
+        """The C literal a read of `sym` compiles to, or None (read the variable).  A CONSTANT scalar of an
+        elementary type (VAR CONSTANT, or a VAR_EXTERNAL bound to a VAR_GLOBAL CONSTANT), not located, whose
+        initial value the semantic passes folded: read as that value, so gcc can fold what it computes and drop
+        the bounds checks it decides (docs/scan-cost.md).  The variable itself is still initialised and listed
+        for the monitor, which never writes or forces a CONSTANT, nor does a retain file restore one.  Only
+        where the generator writes a body (fold_constants): initial values read what the instance holds."""
+        if not self.fold_constants:
+            return None
+        g = sym.global_sym if sym.section == "VAR_EXTERNAL" else sym
+        if g is None or not g.constant or g.location is not None or g.decl is None or g.const_value is None \
+                or not isinstance(g.type, T.Elementary) or g.type.cat == "string" or id(g) in self.folding:
+            return None
+        self.folding.add(id(g))
+        try:
+            v = self.exact_init(g.decl.init, g.type)
+        finally:
+            self.folding.discard(id(g))
+        if v is None or v != g.const_value or isinstance(v, bool) != isinstance(g.const_value, bool):
+            return None
+        t = g.type
+        if t.cat == "bool":
+            return "((uint8_t)1)" if v else "((uint8_t)0)"
+        if t.cat == "real":
+            return f"(({t.ctype}){float(v)!r})"
+        return self.int_const(v, t)
+
+    def exact_init(self, e, t: T.Elementary):
+        """The value C gives a variable of type `t` initialised with `e`, when it is sure to be the value the
+        semantic passes folded (VarSym.const_value), else None: literals, unary minus, NOT of a BOOL, + - * of
+        integers or times where no intermediate result leaves its type (C wraps it), names of CONSTANTs of the
+        same kind (of the same type for a REAL: C rounds each REAL to single precision)."""
+        if not isinstance(e, A.Expr):
+            return None
+        cat = t.cat
+        if cat == "bool":
+            if isinstance(e, A.BoolLit):
+                return bool(e.value)
+            if isinstance(e, A.Unary) and e.op == "NOT":
+                v = self.exact_init(e.operand, t)
+                return None if v is None else not v
+            return self.exact_name(e, lambda u: u is t)
+        if cat == "real":
+            if isinstance(e, A.RealLit):
+                return float(e.value)
+            if isinstance(e, A.IntLit) and abs(e.value) < (1 << 53):
+                return float(e.value)
+            if isinstance(e, A.Unary) and e.op in ("-", "+"):
+                v = self.exact_init(e.operand, t)
+                return None if v is None else (-v if e.op == "-" else v)
+            return self.exact_name(e, lambda u: u is t)
+        if cat not in ("int", "uint", "bit", "time", "date", "tod", "dt"):
+            return None
+        v = self.exact_int(e)
+        return v if v is not None and self.fits(v, t) else None
+
+    def exact_int(self, e: A.Expr):
+        """The exact value of an integer or time constant expression, each node within its own type."""
+        v = None
+        if isinstance(e, A.IntLit):
+            v = e.value
+        elif isinstance(e, A.TimeLit):
+            v = e.value
+        elif isinstance(e, A.Unary) and e.op in ("-", "+"):
+            x = self.exact_int(e.operand)
+            v = None if x is None else (-x if e.op == "-" else x)
+        elif isinstance(e, A.Binary) and e.op in ("+", "-", "*"):
+            a, b = self.exact_int(e.left), self.exact_int(e.right)
+            if a is not None and b is not None:
+                v = {"+": a + b, "-": a - b, "*": a * b}[e.op]
+        elif isinstance(e, A.Name):
+            return self.exact_name(e, lambda u: u.cat not in ("bool", "real", "string"))
+        if v is None or isinstance(v, bool):
+            return None
+        t = T.resolve_base(e.ty) if e.ty is not None else None
+        if isinstance(t, T.LiteralType):
+            return v if -(1 << 63) <= v < (1 << 63) else None
+        return v if isinstance(t, T.Elementary) and self.fits(v, t) else None
+
+    def exact_name(self, e: A.Expr, kind):
+        """The value of a name of a CONSTANT that is read as a literal (folded), if its type is of `kind`."""
+        if not (isinstance(e, A.Name) and isinstance(e.sym, VarSym)):
+            return None
+        g = e.sym.global_sym if e.sym.section == "VAR_EXTERNAL" else e.sym
+        if g is None or not isinstance(g.type, T.Elementary) or not kind(g.type) or self.folded(g) is None:
+            return None
+        return g.const_value
+
+    @staticmethod
+    def fits(v, t: T.Elementary) -> bool:
+        if isinstance(v, bool):
+            return False
+        if t.cat in ("time", "date", "tod", "dt"):
+            return -(1 << 63) <= v < (1 << 63)
+        return t.lo <= v <= t.hi
 
     def ex(self, e: A.Expr) -> str:
         """The C expression of `e`, by its kind's `x_<Kind>` method; a kind without one is a compiler bug."""
@@ -90,7 +190,7 @@ class ExpressionGen(GenBase):
         if isinstance(sym, FuncSym):
             return "RESULT__"
         if isinstance(sym, VarSym):
-            return self.var_ref(sym)
+            return self.for_locals.get(id(sym)) or self.folded(sym) or self.var_ref(sym)
         raise InternalError(e.pos, f"name {e.name} reached the C generator unresolved")
 
     def x_Member(self, e: A.Member) -> str:

@@ -22,7 +22,9 @@ class StatementGen(GenBase):
         for v in pt.scope.vars.values():
             if v.section == "VAR_TEMP":
                 self.emit_init(f"self->{cid(v.name)}", v.type, v.init)
+        self.fold_constants = True
         self.block(pt.pou.body)
+        self.fold_constants = False
         self.ind -= 1
         self.w("}")
         self.w()
@@ -47,7 +49,9 @@ class StatementGen(GenBase):
                 self.w(f"(void){cid(v.name)};")        # a local may be set and never read
             elif v.section == "VAR_OUTPUT":
                 self.emit_init(f"(*{cid(v.name)})", v.type, v.init)
+        self.fold_constants = True
         self.block(fs.pou.body)
+        self.fold_constants = False
         self.w("return RESULT__;")
         self.ind -= 1
         self.w("}")
@@ -175,19 +179,48 @@ class StatementGen(GenBase):
         ct = self.ctype(t)
         ut = "uint" + str(t.bits) + "_t" if isinstance(t, T.Elementary) else "uint32_t"
         self.tmp += 1
+        start = self.conv_to(s.start, t)        # before the loop's own variable is read from its local
+        local = f"loop{self.tmp}" if self.for_in_local(s) else None
+        if local is not None:
+            # The loop reads its variable from a C local, which gcc keeps in a register (a store into an array of
+            # the same type no longer makes it read the instance again), and writes the instance wherever the
+            # local changes, so the two are equal at every point a fault, EXIT or RETURN may leave the loop.
+            self.w("{")
+            self.ind += 1
+            self.w(f"{ct} {local};")
+            self.for_locals[id(s.var.sym)] = local
+            first, cur = f"{local} = {start}, {v} = {local}", local
+        else:
+            first, cur = f"{v} = {start}", v
         # as in MATIEC, the end and BY expressions are evaluated again on every pass
         end = self.conv_to(s.end, t)
         step = self.conv_to(s.step, t) if s.step is not None else "1"
         if s.step is None or self.const_value(s.step) is not None:
             cv = self.const_value(s.step) if s.step is not None else 1
-            cond = f"{v} <= {end}" if cv > 0 else f"{v} >= {end}"
+            cond = f"{cur} <= {end}" if cv > 0 else f"{cur} >= {end}"
         else:
-            cond = f"(({step}) > 0) ? ({v} <= {end}) : ({v} >= {end})"
-        self.w(f"for ({v} = {self.conv_to(s.start, t)}; {cond}; {v} = PLC_ADD({ct}, {ut}, {v}, {step})) {{")
+            cond = f"(({step}) > 0) ? ({cur} <= {end}) : ({cur} >= {end})"
+        nxt = f"{cur} = PLC_ADD({ct}, {ut}, {cur}, {step})" + (f", {v} = {local}" if local is not None else "")
+        self.w(f"for ({first}; {cond}; {nxt}) {{")
         self.ind += 1
         self.block(s.body)
         self.ind -= 1
         self.w("}")
+        if local is not None:
+            del self.for_locals[id(s.var.sym)]
+            self.ind -= 1
+            self.w("}")
+
+    def for_in_local(self, s: A.For) -> bool:
+        """Whether a FOR loop may read its variable from a C local: the variable is a VAR or VAR_TEMP of the
+        function block or program (a FUNCTION's are C locals already), not located, of an integer type, and no
+        FOR loop inside this one counts it (nothing else may write it inside the loop: the semantic passes refuse
+        an assignment, an output or a VAR_IN_OUT of it; no other POU sees it)."""
+        sym = s.var.sym
+        if self.fn is not None or not isinstance(sym, VarSym) or sym.section not in ("VAR", "VAR_TEMP") \
+                or sym.location is not None or sym.constant or not T.is_elem(sym.type, "int", "uint"):
+            return False
+        return not any(isinstance(n, A.For) and n.var.sym is sym for stmt in s.body for n in A.walk(stmt))
 
     def call_stmt(self, c: A.Call) -> None:
         if isinstance(c.target, VarSym):
