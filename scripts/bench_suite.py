@@ -21,6 +21,10 @@ from typing import NamedTuple
 ROOT = Path(__file__).resolve().parent.parent
 
 
+class BadRecord(Exception):
+    """A line of the record that is not one scripts/test wrote: its position and what is wrong."""
+
+
 class Run(NamedTuple):
     ended: str
     commit: str
@@ -41,8 +45,8 @@ def read_runs(path: Path) -> list[Run]:
             ended, commit, suites, load, wall, counts, phases = fields
             runs.append(Run(ended, commit, suites, float(load), int(wall), counts, phases))
         except ValueError:
-            raise SystemExit(f"{path}:{number}: not a scripts/test record (7 tab-separated fields: time, commit, "
-                             f"suites, load, wall seconds, passed/failed/skipped, phases): {line[:80]!r}") from None
+            raise BadRecord(f"{path}:{number}: not a scripts/test record (7 tab-separated fields: time, commit, "
+                            f"suites, load, wall seconds, passed/failed/skipped, phases): {line[:80]!r}") from None
     return runs
 
 
@@ -57,7 +61,7 @@ def main() -> int:
         return 0
     try:
         runs = read_runs(args.file)
-    except SystemExit as e:
+    except BadRecord as e:
         print(e, file=sys.stderr)
         return 2
     if not runs:
